@@ -1,0 +1,199 @@
+"""Strict TOML configuration.
+
+Every section is a frozen dataclass; the loader walks the TOML tables against
+the dataclasses' type hints, so an unknown key, a wrong type or a value out of
+range is rejected at start with a message naming the key and the file. Paths
+(fields with ``metadata={"path": True}``) are taken relative to the config
+file. There is no hidden merging from environment variables.
+
+To add a section, add a dataclass field to :class:`Config` whose type is
+another frozen dataclass with defaults.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tomllib
+import types
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A configuration problem, with the file and key in its message."""
+
+
+def _range(x: Any) -> str | None:
+    if x is None:
+        return None
+    lo, hi = x
+    if not (0 < lo < hi and math.isfinite(hi)):
+        return f"needs 0 < low < high, got [{lo}, {hi}]"
+    return None
+
+
+@dataclass(frozen=True)
+class SearchRangeConfig:
+    """Optional bounds of one winding's swarm search; unset: derived from the data."""
+
+    R: tuple[float, float] | None = dataclasses.field(
+        default=None, metadata={"check": _range, "help": "resistance range [low, high] (ohm)"}
+    )
+    L: tuple[float, float] | None = dataclasses.field(
+        default=None, metadata={"check": _range, "help": "inductance range [low, high] (H)"}
+    )
+
+
+@dataclass(frozen=True)
+class EstimateConfig:
+    """Swarm settings of the estimators."""
+
+    particles: int = dataclasses.field(default=100, metadata={"min": 2})
+    iterations: int = dataclasses.field(default=100, metadata={"min": 1})
+    schedule: str = dataclasses.field(
+        default="s-k", metadata={"choices": ("s-k", "k-s", "social", "individual")}
+    )
+    inertia: float = dataclasses.field(default=0.7, metadata={"min": 0.0, "max": 1.2})
+    seed: int = 0
+    polish: bool = True
+    field: SearchRangeConfig = SearchRangeConfig()
+    armature: SearchRangeConfig = SearchRangeConfig()
+
+    def replace(self, **changes: Any) -> EstimateConfig:
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole configuration file."""
+
+    estimate: EstimateConfig = EstimateConfig()
+
+
+def load_config(path: str | os.PathLike[str], cls: type[T] = Config) -> T:  # type: ignore[assignment]
+    """Read and validate a TOML config file.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the offending key.
+    """
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            data = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: config file not found") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read config: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    return build(cls, data, source=str(p), base_dir=p.parent)
+
+
+def build(cls: type[T], table: dict[str, Any], *, source: str, base_dir: Path, prefix: str = "") -> T:
+    """Instantiate dataclass ``cls`` from a TOML table, strictly."""
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        where = f"[{prefix}]" if prefix else "the top level"
+        raise ConfigError(
+            f"{source}: unknown key '{_join(prefix, unknown[0])}' "
+            f"(allowed in {where}: {', '.join(sorted(fields))})"
+        )
+    values: dict[str, Any] = {}
+    for name, raw in table.items():
+        key = _join(prefix, name)
+        f = fields[name]
+        value = _convert(hints[name], raw, key=key, source=source, base_dir=base_dir)
+        if f.metadata.get("path") and isinstance(value, str):
+            value = str((base_dir / value).resolve()) if value else value
+        _check(f, value, key=key, source=source)
+        values[name] = value
+    try:
+        return cls(**values)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{source}: [{prefix or 'top level'}] {exc}") from None
+
+
+def _join(prefix: str, name: str) -> str:
+    return f"{prefix}.{name}" if prefix else name
+
+
+def _convert(hint: Any, raw: Any, *, key: str, source: str, base_dir: Path) -> Any:
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if raw is None:
+            return None
+        options = [a for a in args if a is not type(None)]
+        errors = []
+        for option in options:
+            try:
+                return _convert(option, raw, key=key, source=source, base_dir=base_dir)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        raise ConfigError(errors[0])
+    if dataclasses.is_dataclass(hint):
+        if not isinstance(raw, dict):
+            raise ConfigError(f"{source}: '{key}' must be a table [{key}]")
+        return build(hint, raw, source=source, base_dir=base_dir, prefix=key)  # type: ignore[type-var]
+    if origin is tuple:
+        if not isinstance(raw, list) or len(raw) != len(args):
+            raise ConfigError(f"{source}: '{key}' must be a list of {len(args)} values, got {raw!r}")
+        return tuple(
+            _convert(a, r, key=key, source=source, base_dir=base_dir) for a, r in zip(args, raw, strict=True)
+        )
+    if origin is dict:
+        if not isinstance(raw, dict):
+            raise ConfigError(f"{source}: '{key}' must be a table")
+        return {str(k): _convert(args[1], v, key=f"{key}.{k}", source=source, base_dir=base_dir) for k, v in raw.items()}
+    if origin is list:
+        if not isinstance(raw, list):
+            raise ConfigError(f"{source}: '{key}' must be a list, got {raw!r}")
+        return [_convert(args[0], r, key=key, source=source, base_dir=base_dir) for r in raw]
+    if hint is bool:
+        if not isinstance(raw, bool):
+            raise ConfigError(f"{source}: '{key}' must be true or false, got {raw!r}")
+        return raw
+    if hint is int:
+        if isinstance(raw, bool) or not isinstance(raw, int):
+            raise ConfigError(f"{source}: '{key}' must be an integer, got {raw!r}")
+        return raw
+    if hint is float:
+        if isinstance(raw, bool) or not isinstance(raw, int | float):
+            raise ConfigError(f"{source}: '{key}' must be a number, got {raw!r}")
+        if not math.isfinite(raw):
+            raise ConfigError(f"{source}: '{key}' must be finite, got {raw!r}")
+        return float(raw)
+    if hint is str:
+        if not isinstance(raw, str):
+            raise ConfigError(f"{source}: '{key}' must be a string, got {raw!r}")
+        return raw
+    if hint is Any:
+        return raw
+    raise ConfigError(f"{source}: '{key}' has an unsupported type {hint!r}")  # pragma: no cover
+
+
+def _check(f: dataclasses.Field[Any], value: Any, *, key: str, source: str) -> None:
+    meta = f.metadata
+    if "choices" in meta and value not in meta["choices"]:
+        raise ConfigError(
+            f"{source}: '{key}' must be one of {', '.join(map(repr, meta['choices']))}, got {value!r}"
+        )
+    if "min" in meta and value is not None and value < meta["min"]:
+        raise ConfigError(f"{source}: '{key}' must be >= {meta['min']}, got {value!r}")
+    if "max" in meta and value is not None and value > meta["max"]:
+        raise ConfigError(f"{source}: '{key}' must be <= {meta['max']}, got {value!r}")
+    check = meta.get("check")
+    if check is not None:
+        problem = check(value)
+        if problem:
+            raise ConfigError(f"{source}: '{key}' {problem}")
