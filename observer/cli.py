@@ -1,0 +1,106 @@
+"""The ``dcobserver`` command line.
+
+Each subcommand lives in its own module with two functions::
+
+    def configure(parser: argparse.ArgumentParser) -> None: ...
+    def main(args: argparse.Namespace) -> int: ...
+
+and is registered in :data:`COMMANDS` by module name, imported only when it
+runs, so ``dcobserver --help`` stays fast (numba is not imported for it).
+User errors (bad files, bad config, bad values) print one line and exit 2;
+no traceback reaches the user.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from observer import __version__
+
+#: name -> (module, one-line help). Keep in the order users meet them.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("observer.commands.simulate", "write a simulated recording of a DC drive"),
+    "estimate": ("observer.commands.estimate", "estimate field and armature parameters of a recording"),
+}
+
+EXIT_USAGE = 2
+
+
+class UserError(Exception):
+    """An error the user can fix; printed as one line, exit status 2."""
+
+
+def _user_error_types() -> tuple[type[BaseException], ...]:
+    from observer.config import ConfigError
+    from observer.estimate import EstimationError
+
+    types: list[type[BaseException]] = [UserError, EstimationError, ConfigError]
+    try:
+        from observer.recording import RecordingError
+
+        types.append(RecordingError)
+    except ImportError:  # pragma: no cover - recording is part of the package
+        pass
+    return tuple(types)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dcobserver",
+        description="Real-time observer of DC-motor winding parameters (R, L of field and "
+        "armature) by particle-swarm output-error identification.",
+    )
+    parser.add_argument("--version", action="version", version=f"dcobserver {__version__}")
+    parser.add_argument(
+        "-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)"
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module_name, help_text) in COMMANDS.items():
+        p = sub.add_parser(
+            name, help=help_text, description=help_text,
+            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        )  # fmt: skip
+        p.set_defaults(_module=module_name)
+        _configure(p, module_name)
+    return parser
+
+
+def _configure(parser: argparse.ArgumentParser, module_name: str) -> None:
+    module = importlib.import_module(module_name)
+    module.configure(parser)
+
+
+def setup_logging(verbosity: int) -> None:
+    """One stderr handler that reads well in journald (no timestamps: journald adds them)."""
+    level = logging.WARNING - 10 * min(verbosity, 2) if verbosity else logging.INFO
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    root.handlers[:] = [handler]
+    root.setLevel(level)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``dcobserver`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_module", None):
+        parser.print_help()
+        return EXIT_USAGE
+    setup_logging(args.verbose)
+    module = importlib.import_module(args._module)
+    try:
+        return int(module.main(args) or 0)
+    except _user_error_types() as exc:
+        print(f"dcobserver {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

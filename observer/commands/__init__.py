@@ -1,0 +1,1 @@
+"""Subcommands of the ``dcobserver`` CLI, one module each (see :mod:`observer.cli`)."""
