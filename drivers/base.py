@@ -1,0 +1,210 @@
+"""The source interface: where samples enter dcobserver.
+
+A source (hardware adapter or replay) yields :class:`SampleBlock` objects:
+timestamped blocks of the winding signals in SI units. Protocol objects
+(``can.Message``, serial bytes, pymodbus responses) never leave ``drivers/``;
+everything downstream sees only sample blocks with integer-nanosecond times.
+
+Template-method style, after python-can's ``BusABC``: the public
+:meth:`Source.read` owns timeouts, validation and health counting; a backend
+overrides only :meth:`Source._read_block` (and optionally :meth:`Source._open` /
+:meth:`Source._close`). ``close()`` is idempotent and sources are context managers.
+"""
+
+from __future__ import annotations
+
+import abc
+import logging
+import threading
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: Channel names, SI units: V, A, V, A, rad/s.
+CHANNELS: tuple[str, ...] = ("va", "ia", "vf", "if", "omega")
+
+
+class SourceError(Exception):
+    """A source failed in a way the caller should see (bad config, cannot open)."""
+
+
+class SourceClosed(SourceError):
+    """The source was closed, or it ended (a replay reached the end of its file)."""
+
+
+@dataclass(frozen=True)
+class SampleBlock:
+    """A block of consecutive samples.
+
+    Attributes
+    ----------
+    t_ns : (n,) int64 array
+        Sample times, integer nanoseconds (device time where the protocol carries
+        it, else host ``time.monotonic_ns``; see each adapter).
+    signals : mapping of channel name -> (n,) float64 array
+        A subset of :data:`CHANNELS` in SI units. A source may lack some channels.
+    """
+
+    t_ns: np.ndarray
+    signals: Mapping[str, np.ndarray]
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t_ns, dtype=np.int64)
+        if t.ndim != 1:
+            raise ValueError(f"t_ns must be one-dimensional, got shape {t.shape}")
+        sig = {}
+        for name, values in self.signals.items():
+            if name not in CHANNELS:
+                raise ValueError(f"unknown channel {name!r}; expected one of {CHANNELS}")
+            arr = np.asarray(values, dtype=np.float64)
+            if arr.shape != t.shape:
+                raise ValueError(f"channel {name!r} has {arr.shape[0]} samples, t_ns has {t.shape[0]}")
+            sig[name] = arr
+        object.__setattr__(self, "t_ns", t)
+        object.__setattr__(self, "signals", MappingProxyType(sig))
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        return tuple(c for c in CHANNELS if c in self.signals)
+
+
+@dataclass
+class SourceHealth:
+    """Counters a source keeps; read a consistent copy with :meth:`Source.health`."""
+
+    connected: bool = False
+    blocks: int = 0
+    samples: int = 0
+    dropped: int = 0  # samples known lost (sequence gaps, overruns at the device)
+    bad_samples: int = 0  # non-finite samples removed from blocks
+    errors: int = 0  # bad frames, protocol errors, exceptions in the backend
+    reconnects: int = 0
+    last_error: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        out = {k: v for k, v in self.__dict__.items() if k != "extra"}
+        out.update(self.extra)
+        return out
+
+
+class Source(abc.ABC):
+    """Abstract source of :class:`SampleBlock` objects.
+
+    Subclasses implement :meth:`_read_block`; they may override :meth:`_open`
+    and :meth:`_close`. Health counters are updated under a lock so the
+    observer can read them from another thread.
+    """
+
+    #: Registry name (e.g. "replay", "can"); set by subclasses.
+    name: str = "source"
+
+    def __init__(self) -> None:
+        self._health = SourceHealth()
+        self._lock = threading.Lock()
+        self._closed = False
+        self._opened = False
+
+    # -- backend hooks -------------------------------------------------------
+
+    def _open(self) -> None:
+        """Connect to the device. Called once, by the first :meth:`read`."""
+
+    @abc.abstractmethod
+    def _read_block(self, timeout: float | None) -> SampleBlock | None:
+        """Return the next block, or None if none arrived within ``timeout`` seconds.
+
+        Raise :class:`SourceClosed` when the source has ended for good.
+        """
+
+    def _close(self) -> None:
+        """Release the device. Called once."""
+
+    # -- public API ------------------------------------------------------------
+
+    def read(self, timeout: float | None = None) -> SampleBlock | None:
+        """Next block of samples, or None on timeout.
+
+        Non-finite samples are removed and counted in ``bad_samples``; a block
+        left empty is swallowed (None is returned). Raises :class:`SourceClosed`
+        after :meth:`close` or when the source has ended.
+        """
+        if self._closed:
+            raise SourceClosed(f"{self.name} source is closed")
+        if not self._opened:
+            self._open()
+            self._opened = True
+            self._count(connected=True)
+        block = self._read_block(timeout)
+        if block is None:
+            return None
+        finite = np.ones(len(block), dtype=bool)
+        for values in block.signals.values():
+            finite &= np.isfinite(values)
+        n_bad = int(len(block) - finite.sum())
+        if n_bad:
+            block = SampleBlock(
+                block.t_ns[finite], {k: v[finite] for k, v in block.signals.items()}
+            )
+        self._count(blocks=1, samples=len(block), bad_samples=n_bad)
+        return block if len(block) else None
+
+    def __iter__(self) -> Iterator[SampleBlock]:
+        """Blocks until the source ends."""
+        while True:
+            try:
+                block = self.read(timeout=1.0)
+            except SourceClosed:
+                return
+            if block is not None:
+                yield block
+
+    def health(self) -> dict[str, Any]:
+        """A consistent copy of the health counters."""
+        with self._lock:
+            return self._health.as_dict()
+
+    def _count(self, **changes: Any) -> None:
+        """Add to counters (ints) or set fields (others) under the lock."""
+        with self._lock:
+            for key, value in changes.items():
+                if key == "error":
+                    self._health.errors += 1
+                    self._health.last_error = str(value)
+                elif hasattr(self._health, key) and isinstance(value, int) and not isinstance(value, bool):
+                    setattr(self._health, key, getattr(self._health, key) + value)
+                elif hasattr(self._health, key):
+                    setattr(self._health, key, value)
+                else:
+                    self._health.extra[key] = value
+
+    def close(self) -> None:
+        """Release the source. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self._opened:
+                self._close()
+        finally:
+            self._count(connected=False)
+
+    def __enter__(self) -> Source:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def monotonic_ns() -> int:
+    """Host monotonic clock, the timestamp of sources whose protocol carries none."""
+    return time.monotonic_ns()
