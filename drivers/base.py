@@ -19,8 +19,9 @@ import threading
 import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -107,6 +108,28 @@ class Source(abc.ABC):
 
     #: Registry name (e.g. "replay", "can"); set by subclasses.
     name: str = "source"
+
+    #: Frozen dataclass of this source's options (the ``[source.options]`` table
+    #: of a config file), validated strictly by :func:`observer.config.build`.
+    Options: ClassVar[type | None] = None
+
+    @classmethod
+    def from_config(cls, table: Mapping[str, Any], *, source: str, base_dir: Path) -> Source:
+        """Build from the ``[source.options]`` table of config file ``source``.
+
+        The config file says ``[source] kind = "<name>"`` and gives this
+        source's options in ``[source.options]``. Unknown keys and bad values
+        raise :class:`observer.config.ConfigError` naming the key and the file;
+        relative paths are taken from ``base_dir`` (the config file's folder).
+        Subclasses set :attr:`Options` and accept an instance of it as the
+        only positional argument of ``__init__``.
+        """
+        from observer.config import ConfigError, build
+
+        if cls.Options is None:
+            raise ConfigError(f"{source}: source {cls.name!r} cannot be configured from a file")
+        options = build(cls.Options, dict(table), source=source, base_dir=base_dir, prefix="source.options")
+        return cls(options)  # type: ignore[call-arg]
 
     def __init__(self) -> None:
         self._health = SourceHealth()
