@@ -55,8 +55,8 @@ def source_class(name: str) -> type[Source]:
     """
     if name in BACKENDS:
         module_name, class_name = BACKENDS[name]
-        cls = getattr(importlib.import_module(module_name), class_name)
-        return cls  # type: ignore[no-any-return]
+        cls: type[Source] = getattr(importlib.import_module(module_name), class_name)
+        return cls
     plugins = _plugins()
     if name in plugins:
         return plugins[name]  # type: ignore[return-value]

@@ -65,7 +65,9 @@ class SampleBlock:
                 raise ValueError(f"unknown channel {name!r}; expected one of {CHANNELS}")
             arr = np.asarray(values, dtype=np.float64)
             if arr.shape != t.shape:
-                raise ValueError(f"channel {name!r} has {arr.shape[0]} samples, t_ns has {t.shape[0]}")
+                raise ValueError(
+                    f"channel {name!r} has {arr.shape[0]} samples, t_ns has {t.shape[0]}"
+                )
             sig[name] = arr
         object.__setattr__(self, "t_ns", t)
         object.__setattr__(self, "signals", MappingProxyType(sig))
@@ -128,7 +130,9 @@ class Source(abc.ABC):
 
         if cls.Options is None:
             raise ConfigError(f"{source}: source {cls.name!r} cannot be configured from a file")
-        options = build(cls.Options, dict(table), source=source, base_dir=base_dir, prefix="source.options")
+        options: Any = build(
+            cls.Options, dict(table), source=source, base_dir=base_dir, prefix="source.options"
+        )
         return cls(options)  # type: ignore[call-arg]
 
     def __init__(self) -> None:
@@ -139,7 +143,7 @@ class Source(abc.ABC):
 
     # -- backend hooks -------------------------------------------------------
 
-    def _open(self) -> None:
+    def _open(self) -> None:  # noqa: B027 - optional hook
         """Connect to the device. Called once, by the first :meth:`read`."""
 
     @abc.abstractmethod
@@ -149,7 +153,7 @@ class Source(abc.ABC):
         Raise :class:`SourceClosed` when the source has ended for good.
         """
 
-    def _close(self) -> None:
+    def _close(self) -> None:  # noqa: B027 - optional hook
         """Release the device. Called once."""
 
     # -- public API ------------------------------------------------------------
@@ -203,7 +207,11 @@ class Source(abc.ABC):
                 if key == "error":
                     self._health.errors += 1
                     self._health.last_error = str(value)
-                elif hasattr(self._health, key) and isinstance(value, int) and not isinstance(value, bool):
+                elif (
+                    hasattr(self._health, key)
+                    and isinstance(value, int)
+                    and not isinstance(value, bool)
+                ):
                     setattr(self._health, key, getattr(self._health, key) + value)
                 elif hasattr(self._health, key):
                     setattr(self._health, key, value)

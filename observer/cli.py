@@ -24,7 +24,10 @@ from observer import __version__
 #: name -> (module, one-line help). Keep in the order users meet them.
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("observer.commands.simulate", "write a simulated recording of a DC drive"),
-    "estimate": ("observer.commands.estimate", "estimate field and armature parameters of a recording"),
+    "estimate": (
+        "observer.commands.estimate",
+        "estimate field and armature parameters of a recording",
+    ),
 }
 
 EXIT_USAGE = 2

@@ -97,7 +97,9 @@ def load_config(path: str | os.PathLike[str], cls: type[T] = Config) -> T:  # ty
     return build(cls, data, source=str(p), base_dir=p.parent)
 
 
-def build(cls: type[T], table: dict[str, Any], *, source: str, base_dir: Path, prefix: str = "") -> T:
+def build(
+    cls: type[T], table: dict[str, Any], *, source: str, base_dir: Path, prefix: str = ""
+) -> T:
     """Instantiate dataclass ``cls`` from a TOML table, strictly."""
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
@@ -144,17 +146,23 @@ def _convert(hint: Any, raw: Any, *, key: str, source: str, base_dir: Path) -> A
     if dataclasses.is_dataclass(hint):
         if not isinstance(raw, dict):
             raise ConfigError(f"{source}: '{key}' must be a table [{key}]")
-        return build(hint, raw, source=source, base_dir=base_dir, prefix=key)  # type: ignore[type-var]
+        return build(typing.cast(type, hint), raw, source=source, base_dir=base_dir, prefix=key)
     if origin is tuple:
         if not isinstance(raw, list) or len(raw) != len(args):
-            raise ConfigError(f"{source}: '{key}' must be a list of {len(args)} values, got {raw!r}")
+            raise ConfigError(
+                f"{source}: '{key}' must be a list of {len(args)} values, got {raw!r}"
+            )
         return tuple(
-            _convert(a, r, key=key, source=source, base_dir=base_dir) for a, r in zip(args, raw, strict=True)
+            _convert(a, r, key=key, source=source, base_dir=base_dir)
+            for a, r in zip(args, raw, strict=True)
         )
     if origin is dict:
         if not isinstance(raw, dict):
             raise ConfigError(f"{source}: '{key}' must be a table")
-        return {str(k): _convert(args[1], v, key=f"{key}.{k}", source=source, base_dir=base_dir) for k, v in raw.items()}
+        return {
+            str(k): _convert(args[1], v, key=f"{key}.{k}", source=source, base_dir=base_dir)
+            for k, v in raw.items()
+        }
     if origin is list:
         if not isinstance(raw, list):
             raise ConfigError(f"{source}: '{key}' must be a list, got {raw!r}")
@@ -186,7 +194,8 @@ def _check(f: dataclasses.Field[Any], value: Any, *, key: str, source: str) -> N
     meta = f.metadata
     if "choices" in meta and value not in meta["choices"]:
         raise ConfigError(
-            f"{source}: '{key}' must be one of {', '.join(map(repr, meta['choices']))}, got {value!r}"
+            f"{source}: '{key}' must be one of "
+            f"{', '.join(map(repr, meta['choices']))}, got {value!r}"
         )
     if "min" in meta and value is not None and value < meta["min"]:
         raise ConfigError(f"{source}: '{key}' must be >= {meta['min']}, got {value!r}")

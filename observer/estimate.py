@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from observer import kernels
-from observer.pso import PSOResult, ParticleSwarm
+from observer.pso import ParticleSwarm, PSOResult
 
 CIRCUITS = ("field", "armature")
 
@@ -66,7 +66,9 @@ class SearchRange:
             hi = max(min(x * factor, lim[1]), lim[0] * factor)
             return lo, hi
 
-        return SearchRange(clip(resistance_ohm, self.resistance_ohm), clip(inductance_h, self.inductance_h))
+        return SearchRange(
+            clip(resistance_ohm, self.resistance_ohm), clip(inductance_h, self.inductance_h)
+        )
 
 
 @dataclass(frozen=True)
@@ -151,7 +153,9 @@ def _check_signals(**signals: np.ndarray) -> int:
         if x.ndim != 1:
             raise EstimationError(f"{name} must be one-dimensional, got shape {x.shape}")
         if n >= 0 and x.shape[0] != n:
-            raise EstimationError(f"signals differ in length: {name} has {x.shape[0]}, expected {n}")
+            raise EstimationError(
+                f"signals differ in length: {name} has {x.shape[0]}, expected {n}"
+            )
         n = x.shape[0]
         if not np.all(np.isfinite(x)):
             raise EstimationError(f"{name} contains NaN or Inf")
@@ -426,7 +430,7 @@ def estimate_field(
         schedule=schedule, w=w, rng=rng_, x0=x0, init_range=init_range,
         explore_fraction=explore_fraction, tol=tol,
     )  # fmt: skip
-    resistance, inductance = (float(v) for v in 10.0 ** result.x)
+    resistance, inductance = (float(v) for v in 10.0**result.x)
     i0, resid = _field_linear(resistance, inductance, vf, i_f, dt)
 
     def residual(theta: np.ndarray) -> np.ndarray:
@@ -505,9 +509,7 @@ def estimate_armature(
     n = _check_signals(va=va, ia=ia, i_f=i_f, omega=omega)
     rng_ = np.random.default_rng(rng)
     bounds = (
-        search_range
-        if search_range is not None
-        else armature_search_range(va, ia, i_f, omega, dt)
+        search_range if search_range is not None else armature_search_range(va, ia, i_f, omega, dt)
     )
     emf = kernels.emf_input(i_f, omega)
     k_arg = math.nan if emf_constant is None else float(emf_constant)
@@ -520,7 +522,7 @@ def estimate_armature(
         schedule=schedule, w=w, rng=rng_, x0=x0, init_range=init_range,
         explore_fraction=explore_fraction, tol=tol,
     )  # fmt: skip
-    resistance, inductance = (float(v) for v in 10.0 ** result.x)
+    resistance, inductance = (float(v) for v in 10.0**result.x)
     k_value, i0, resid = _armature_linear(resistance, inductance, va, emf, ia, dt, emf_constant)
 
     fit_k = emf_constant is None
@@ -530,7 +532,9 @@ def estimate_armature(
         k_ = theta[3] if fit_k else k_value
         return ia - kernels.simulate_armature(r_, l_, k_, theta[2], va, emf, dt)
 
-    theta = np.array([math.log(resistance), math.log(inductance), i0] + ([k_value] if fit_k else []))
+    theta = np.array(
+        [math.log(resistance), math.log(inductance), i0] + ([k_value] if fit_k else [])
+    )
     if polish:
         theta, resid, jac = _levenberg_marquardt(residual, theta)
     else:
@@ -587,7 +591,7 @@ def _configured_range(cfg: Any) -> SearchRange | None:
         return None
     if cfg.R is None or cfg.L is None:
         raise EstimationError("a configured search range needs both R and L")
-    return SearchRange(tuple(cfg.R), tuple(cfg.L))  # type: ignore[arg-type]
+    return SearchRange(tuple(cfg.R), tuple(cfg.L))
 
 
 def estimate_recording(

@@ -446,8 +446,12 @@ def simulate_drive(
             f1 = if_inf + (i_f - if_inf) * a1
             f2 = if_inf + (i_f - if_inf) * a2
             k1a, k1w = _armature_mech_rhs(ia, omega, f0, va, tl, motor)
-            k2a, k2w = _armature_mech_rhs(ia + 0.5 * h * k1a, omega + 0.5 * h * k1w, f1, va, tl, motor)
-            k3a, k3w = _armature_mech_rhs(ia + 0.5 * h * k2a, omega + 0.5 * h * k2w, f1, va, tl, motor)
+            k2a, k2w = _armature_mech_rhs(
+                ia + 0.5 * h * k1a, omega + 0.5 * h * k1w, f1, va, tl, motor
+            )
+            k3a, k3w = _armature_mech_rhs(
+                ia + 0.5 * h * k2a, omega + 0.5 * h * k2w, f1, va, tl, motor
+            )
             k4a, k4w = _armature_mech_rhs(ia + h * k3a, omega + h * k3w, f2, va, tl, motor)
             ia += h * (k1a + 2 * k2a + 2 * k3a + k4a) / 6
             omega += h * (k1w + 2 * k2w + 2 * k3w + k4w) / 6

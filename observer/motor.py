@@ -44,7 +44,9 @@ class MotorParameters:
             if f.name == "name":
                 continue
             if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ValueError(f"motor parameter {f.name} must be a positive number, got {value!r}")
+                raise ValueError(
+                    f"motor parameter {f.name} must be a positive number, got {value!r}"
+                )
 
     @property
     def rated_field_current_a(self) -> float:

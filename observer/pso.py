@@ -144,9 +144,13 @@ class ParticleSwarm:
     ) -> None:
         box = np.array(bounds, dtype=np.float64)
         if box.ndim != 2 or box.shape[1] != 2 or box.shape[0] < 1:
-            raise ValueError(f"bounds must be a sequence of (low, high) pairs, got shape {box.shape}")
+            raise ValueError(
+                f"bounds must be a sequence of (low, high) pairs, got shape {box.shape}"
+            )
         if not np.all(np.isfinite(box)) or np.any(box[:, 0] >= box[:, 1]):
-            raise ValueError(f"bounds need finite low < high in every dimension, got {box.tolist()}")
+            raise ValueError(
+                f"bounds need finite low < high in every dimension, got {box.tolist()}"
+            )
         if n_particles < 2:
             raise ValueError(f"n_particles must be >= 2, got {n_particles}")
         if not 0.0 <= w < 1.5:
@@ -173,11 +177,15 @@ class ParticleSwarm:
 
         init = box if init_bounds is None else np.array(init_bounds, dtype=np.float64)
         if init.shape != box.shape or np.any(init[:, 0] > init[:, 1]):
-            raise ValueError(f"init_bounds must be {box.shape[0]} (low, high) pairs with low <= high")
+            raise ValueError(
+                f"init_bounds must be {box.shape[0]} (low, high) pairs with low <= high"
+            )
         init_lo = np.clip(init[:, 0], self.lower, self.upper)
         init_hi = np.clip(init[:, 1], self.lower, self.upper)
 
-        n_explore = int(round(explore_fraction * self.n_particles)) if init_bounds is not None else 0
+        n_explore = (
+            int(round(explore_fraction * self.n_particles)) if init_bounds is not None else 0
+        )
         u = self.rng.random((self.n_particles, self.n_dim))
         x = init_lo + u * (init_hi - init_lo)
         if n_explore:

@@ -173,11 +173,19 @@ def simulate(
         speed, load, field, noise_samples, state0,
     )  # fmt: skip
     t = np.arange(n) * dt
-    signals = {name: measured[:, c].copy() for c, name in enumerate(("va", "ia", "vf", "if", "omega"))}
+    signals = {
+        name: measured[:, c].copy() for c, name in enumerate(("va", "ia", "vf", "if", "omega"))
+    }
     metadata = {
         "generator": "dcobserver simulate",
         "motor": motor.to_dict(),
-        "noise": {"va": levels.va, "ia": levels.ia, "vf": levels.vf, "if": levels.i_f, "omega": levels.omega},
+        "noise": {
+            "va": levels.va,
+            "ia": levels.ia,
+            "vf": levels.vf,
+            "if": levels.i_f,
+            "omega": levels.omega,
+        },
         "seed": seed,
         "sample_rate_hz": sample_rate_hz,
     }

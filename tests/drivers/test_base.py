@@ -40,7 +40,9 @@ class TestArraySourceContract(SourceContract):
 
 def test_non_finite_samples_are_removed_and_counted():
     t = np.arange(4) * 1000
-    src = ArraySource([SampleBlock(t, {"va": [1.0, np.nan, 3.0, np.inf], "ia": [1.0, 2.0, 3.0, 4.0]})])
+    src = ArraySource(
+        [SampleBlock(t, {"va": [1.0, np.nan, 3.0, np.inf], "ia": [1.0, 2.0, 3.0, 4.0]})]
+    )
     block = src.read()
     assert block is not None
     np.testing.assert_array_equal(block.t_ns, [0, 2000])

@@ -14,7 +14,12 @@ def write(tmp_path, text):
 
 
 def test_valid_config_and_defaults(tmp_path):
-    cfg = load_config(write(tmp_path, "[estimate]\nparticles = 50\n[estimate.field]\nR = [100.0, 300]\nL = [1, 90.5]\n"))
+    cfg = load_config(
+        write(
+            tmp_path,
+            "[estimate]\nparticles = 50\n[estimate.field]\nR = [100.0, 300]\nL = [1, 90.5]\n",
+        )
+    )
     assert isinstance(cfg, Config)
     assert cfg.estimate.particles == 50
     assert cfg.estimate.iterations == 100

@@ -1,0 +1,20 @@
+"""Shared fixtures: simulated motors are expensive, so they are made once per session."""
+
+from __future__ import annotations
+
+import pytest
+
+from observer.motor import P12, TRACTION_60V
+from observer.simulate import simulate
+
+
+@pytest.fixture(scope="session")
+def p12_recording():
+    """12 s of the P-12 in duty-cycle operation, 2 kHz, 0.2 % sensor noise."""
+    return simulate(P12, duration_s=12.0, sample_rate_hz=2000.0, noise=0.002, seed=3)
+
+
+@pytest.fixture(scope="session")
+def traction_recording():
+    """12 s of a 60 V / 16 mOhm traction motor, 2 kHz, 0.2 % sensor noise."""
+    return simulate(TRACTION_60V, duration_s=12.0, sample_rate_hz=2000.0, noise=0.002, seed=4)

@@ -1,0 +1,132 @@
+"""Estimation on simulated recordings: accuracy, uncertainty, ranges, bad data."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from observer import kernels
+from observer.config import EstimateConfig, SearchRangeConfig
+from observer.estimate import (
+    EstimationError,
+    SearchRange,
+    armature_search_range,
+    estimate_armature,
+    estimate_field,
+    estimate_recording,
+    field_search_range,
+)
+from observer.motor import P12, TRACTION_60V
+
+
+def _rel(estimate: float, truth: float) -> float:
+    return abs(estimate - truth) / truth
+
+
+@pytest.mark.parametrize("fixture", ["p12_recording", "traction_recording"])
+def test_both_circuits_within_tolerance_without_configuration(fixture, request):
+    rec = request.getfixturevalue(fixture)
+    motor = P12 if fixture == "p12_recording" else TRACTION_60V
+    est = estimate_recording(rec)
+    f, a = est["field"], est["armature"]
+    assert _rel(f.resistance_ohm, motor.field_resistance_ohm) < 0.01
+    assert _rel(f.inductance_h, motor.field_inductance_h) < 0.01
+    assert _rel(a.resistance_ohm, motor.armature_resistance_ohm) < 0.01
+    assert _rel(a.emf_constant_h, motor.emf_constant_h) < 0.01
+    assert _rel(a.inductance_h, motor.armature_inductance_h) < 0.06
+    for e in (f, a):
+        assert all(math.isfinite(s) and s > 0 for s in e.std.values())
+        assert e.rms_a > 0
+
+
+def test_field_estimate_matches_its_uncertainty_with_output_noise_only():
+    """White current noise only: the output-error estimate is ML, its error ~ CRLB."""
+    dt, n = 1e-3, 4000
+    rng = np.random.default_rng(11)
+    vf = np.repeat(rng.uniform(150, 300, n // 400 + 1), 400)[:n]
+    clean = kernels.simulate_rl(185.0, 50.0, 1.0, vf, dt)
+    z_r, z_l = [], []
+    for seed in range(8):
+        y = clean + np.random.default_rng(seed).normal(0, 0.003, n)
+        e = estimate_field(vf, y, dt, rng=seed)
+        z_r.append((e.resistance_ohm - 185.0) / e.std["R"])
+        z_l.append((e.inductance_h - 50.0) / e.std["L"])
+    # Normalised errors are ~N(0, 1): a wrong std (10x off either way) fails this.
+    assert 0.3 < np.sqrt(np.mean(np.square(z_r))) < 2.5
+    assert 0.3 < np.sqrt(np.mean(np.square(z_l))) < 2.5
+
+
+def test_swarm_alone_gets_close_and_polish_reaches_the_minimum(p12_recording):
+    rec = p12_recording
+    raw = estimate_field(rec["vf"], rec["if"], rec.dt, rng=0, polish=False)
+    polished = estimate_field(rec["vf"], rec["if"], rec.dt, rng=0)
+    assert _rel(raw.resistance_ohm, 185.0) < 0.02
+    assert polished.rms_a <= raw.rms_a
+    assert not raw.polished and polished.polished
+
+
+def test_same_seed_same_estimate(p12_recording):
+    a = estimate_recording(p12_recording, ("field",), EstimateConfig(seed=5))
+    b = estimate_recording(p12_recording, ("field",), EstimateConfig(seed=5))
+    assert a["field"].resistance_ohm == b["field"].resistance_ohm
+    np.testing.assert_array_equal(a["field"].pso.history, b["field"].pso.history)
+
+
+def test_configured_range_is_used(p12_recording):
+    cfg = EstimateConfig(field=SearchRangeConfig(R=(150.0, 250.0), L=(20.0, 80.0)))
+    est = estimate_recording(p12_recording, ("field",), cfg)["field"]
+    assert est.search_range == SearchRange((150.0, 250.0), (20.0, 80.0))
+    assert _rel(est.resistance_ohm, 185.0) < 0.01
+
+
+def test_derived_ranges_contain_the_truth_for_both_motors(p12_recording, traction_recording):
+    for rec, m in ((p12_recording, P12), (traction_recording, TRACTION_60V)):
+        fr = field_search_range(rec["vf"], rec["if"], rec.dt)
+        ar = armature_search_range(rec["va"], rec["ia"], rec["if"], rec["omega"], rec.dt)
+        assert fr.resistance_ohm[0] < m.field_resistance_ohm < fr.resistance_ohm[1]
+        assert fr.inductance_h[0] < m.field_inductance_h < fr.inductance_h[1]
+        assert ar.resistance_ohm[0] < m.armature_resistance_ohm < ar.resistance_ohm[1]
+        assert ar.inductance_h[0] < m.armature_inductance_h < ar.inductance_h[1]
+
+
+def test_held_emf_constant_is_reported_and_not_fitted(p12_recording):
+    rec = p12_recording
+    est = estimate_armature(
+        rec["va"], rec["ia"], rec["if"], rec["omega"], rec.dt, emf_constant=1.0, rng=0
+    )
+    assert est.emf_constant_h == 1.0
+    assert est.std["K"] == 0.0
+
+
+def test_warm_start_in_a_narrow_range_converges(p12_recording):
+    rec = p12_recording
+    full = field_search_range(rec["vf"], rec["if"], rec.dt)
+    narrow = full.around(190.0, 48.0, 1.2)
+    est = estimate_field(
+        rec["vf"], rec["if"], rec.dt, rng=0, x0=(190.0, 48.0), init_range=narrow,
+        explore_fraction=0.1, max_iterations=30, polish=False,
+    )  # fmt: skip
+    assert _rel(est.resistance_ohm, 185.0) < 0.01
+
+
+@pytest.mark.parametrize(
+    ("vf", "i_f", "match"),
+    [
+        (np.full(100, 220.0), np.zeros(100), "not excited"),
+        (np.full(100, 220.0), np.full(100, -1.0), "sign"),
+        (np.full(5, 220.0), np.full(5, 1.0), "at least 10"),
+        (np.r_[np.full(99, 220.0), np.nan], np.full(100, 1.0), "NaN"),
+    ],
+)
+def test_unusable_field_data_raises_a_clear_error(vf, i_f, match):
+    with pytest.raises(EstimationError, match=match):
+        estimate_field(vf, i_f, 1e-3)
+
+
+def test_missing_channel_names_the_column(p12_recording):
+    from observer.recording import RecordingError
+
+    with pytest.raises(RecordingError, match="omega"):
+        estimate_recording(p12_recording.select("va", "ia", "if"), ("armature",), path="x.csv")
