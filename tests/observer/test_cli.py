@@ -1,0 +1,127 @@
+"""The command line as users meet it: real subprocesses, real files, exit codes."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from observer.cli import COMMANDS
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run(
+        [sys.executable, "-m", "observer.cli", *args],
+        cwd=cwd, env=env, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def p12_csv(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("cli") / "p12.csv.gz"
+    res = run(
+        "simulate", str(path), "--duration", "8", "--rate", "2000", "--seed", "2", cwd=path.parent
+    )
+    assert res.returncode == 0, res.stderr
+    return path
+
+
+def test_every_command_has_help(tmp_path):
+    res = run("--help", cwd=tmp_path)
+    assert res.returncode == 0
+    for name in COMMANDS:
+        assert name in res.stdout
+        sub = run(name, "--help", cwd=tmp_path)
+        assert sub.returncode == 0, sub.stderr
+        assert "usage: dcobserver " + name in sub.stdout
+
+
+def test_estimate_json_contract_and_accuracy(p12_csv):
+    res = run("estimate", str(p12_csv), "--json", cwd=p12_csv.parent)
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    assert set(out) == {"field", "armature"}
+    for key in ("R", "L", "rms", "std"):
+        assert key in out["field"] and key in out["armature"]
+    assert "K" in out["armature"]
+    assert abs(out["field"]["R"] / 185.0 - 1) < 0.01
+    assert abs(out["field"]["L"] / 50.0 - 1) < 0.01
+    assert abs(out["armature"]["R"] / 3.5 - 1) < 0.01
+    assert abs(out["armature"]["L"] / 0.02 - 1) < 0.05
+
+
+def test_estimate_table_shows_truth_from_metadata(tmp_path):
+    rec = tmp_path / "field.mcap"
+    assert (
+        run("simulate", str(rec), "--duration", "12", "--circuit", "field", cwd=tmp_path).returncode
+        == 0
+    )
+    res = run("estimate", str(rec), "--circuit", "field", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert "field" in res.stdout and "true" in res.stdout and "%" in res.stdout
+    # A field-only file has no armature channels: a clear error, not a traceback.
+    bad = run("estimate", str(rec), "--circuit", "armature", cwd=tmp_path)
+    assert bad.returncode == 2
+    assert "Traceback" not in bad.stderr
+    assert "va" in bad.stderr and "field.mcap" in bad.stderr
+
+
+@pytest.mark.parametrize(
+    ("content", "fragments"),
+    [
+        ("", ["empty"]),
+        ("t,va,ia\n0,1,2\n0.001,1,nan\n0.002,1,2\n", ["row 3", "'ia'", "NaN"]),
+        ("t,vf,if\n0,1,2\n0.001,1,2\n0.001,1,2\n", ["row 4", "increasing"]),
+        ("t,vf,if\n0,1,2\n0.001,1,2\n0.005,1,2\n0.006,1,2\n", ["row 4", "sampl"]),
+        ("t,vf\n0,1\n0.001,abc\n", ["row 3", "'vf'"]),
+    ],
+)
+def test_bad_recordings_exit_2_with_one_line(tmp_path, content, fragments):
+    path = tmp_path / "bad.csv"
+    path.write_text(content)
+    res = run("estimate", str(path), cwd=tmp_path)
+    assert res.returncode == 2
+    assert "Traceback" not in res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, res.stderr
+    assert "bad.csv" in lines[0]
+    for fragment in fragments:
+        assert fragment in lines[0]
+
+
+def test_bad_config_names_key_and_file(tmp_path, p12_csv):
+    cfg = tmp_path / "narrow.toml"
+    cfg.write_text("[estimate.field]\nR = [100.0, 300.0]\nLL = [1.0, 2.0]\n")
+    res = run("estimate", str(p12_csv), "--config", str(cfg), cwd=tmp_path)
+    assert res.returncode == 2
+    assert "narrow.toml" in res.stderr and "estimate.field.LL" in res.stderr
+    assert "Traceback" not in res.stderr
+
+
+def test_config_narrows_the_search(tmp_path, p12_csv):
+    cfg = tmp_path / "narrow.toml"
+    cfg.write_text("[estimate.field]\nR = [150.0, 250.0]\nL = [20.0, 80.0]\n")
+    res = run(
+        "estimate", str(p12_csv), "--config", str(cfg), "--circuit", "field", "--json", cwd=tmp_path
+    )
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    assert out["field"]["search_range"] == {"R": [150.0, 250.0], "L": [20.0, 80.0]}
+
+
+def test_same_seed_same_numbers_across_processes(p12_csv):
+    a = run(
+        "estimate", str(p12_csv), "--json", "--seed", "7", "--circuit", "field", cwd=p12_csv.parent
+    )
+    b = run(
+        "estimate", str(p12_csv), "--json", "--seed", "7", "--circuit", "field", cwd=p12_csv.parent
+    )
+    assert a.returncode == b.returncode == 0
+    assert json.loads(a.stdout)["field"]["R"] == json.loads(b.stdout)["field"]["R"]
