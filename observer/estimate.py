@@ -29,6 +29,9 @@ from observer.pso import ParticleSwarm, PSOResult
 
 CIRCUITS = ("field", "armature")
 
+#: The errors-in-variables refinement searches within this factor of the plain estimate.
+_COMPENSATION_FACTOR = 1.5
+
 
 class EstimationError(ValueError):
     """The data cannot support an estimate (e.g. a winding without current)."""
@@ -86,8 +89,10 @@ class CircuitEstimate:
     rms_a : float
         Root-mean-square current error of the fit (A).
     std : dict
-        One-sigma Cramer-Rao uncertainty per parameter (``R``, ``L``, ``K``), from
-        the Fisher information at the optimum with the fit's residual variance.
+        One-sigma uncertainty per parameter (``R``, ``L``, ``K``): the Cramer-Rao
+        bound from the Fisher information at the optimum with the fit's residual
+        variance; for the armature combined with the size of the errors-in-variables
+        correction (the bound alone ignores noise on the measured voltages).
     n_samples : int
     search_range : SearchRange
     pso : PSOResult
@@ -314,16 +319,37 @@ def _levenberg_marquardt(
     return theta, r, jac
 
 
-def _crlb_std(jac: np.ndarray, residual: np.ndarray) -> np.ndarray:
-    """One-sigma Cramer-Rao bounds from the Jacobian and residual at the optimum."""
+def _crlb_std(
+    jac: np.ndarray, residual: np.ndarray, time_constant_samples: float = 0.0
+) -> np.ndarray:
+    """One-sigma uncertainty of least-squares parameters at the optimum.
+
+    With white residuals this is the Cramer-Rao bound ``sigma^2 (J'J)^-1``. The
+    output-error residual is not white, though: noise on the measured voltages
+    reaches it through the model and lasts a few time constants. The sandwich
+    ``(J'J)^-1 S (J'J)^-1``, with ``S`` the Newey-West (Bartlett-weighted)
+    long-run covariance of the scores ``J_k r_k`` over three time constants,
+    keeps the bound honest then, and equals it when the residual is white.
+    """
     n, p = jac.shape
-    sigma2 = float(residual @ residual) / max(n - p, 1)
     try:
-        cov = sigma2 * np.linalg.inv(jac.T @ jac)
+        bread = np.linalg.inv(jac.T @ jac)
     except np.linalg.LinAlgError:
         return np.full(p, np.inf)
-    diag = np.diag(cov)
-    return np.where(diag >= 0, np.sqrt(np.abs(diag)), np.inf)
+    sigma2 = float(residual @ residual) / max(n - p, 1)
+    white = sigma2 * np.diag(bread)
+    max_lag = int(min(3.0 * time_constant_samples, 400, n // 4))
+    if max_lag >= 1:
+        scores = jac * residual[:, None]
+        meat = scores.T @ scores
+        for lag in range(1, max_lag + 1):
+            c = scores[:-lag].T @ scores[lag:]
+            meat += (1.0 - lag / (max_lag + 1)) * (c + c.T)
+        meat *= n / max(n - p, 1)
+        robust = np.diag(bread @ meat @ bread)
+        # Never report less than the white-noise bound.
+        white = np.maximum(white, robust)
+    return np.where(white >= 0, np.sqrt(np.abs(white)), np.inf)
 
 
 # ------------------------------------------------- errors-in-variables bias
@@ -443,7 +469,7 @@ def estimate_field(
     else:
         resid = residual(theta)
         _, _, jac = _levenberg_marquardt(residual, theta, max_iterations=0)
-    std_log = _crlb_std(jac, resid)
+    std_log = _crlb_std(jac, resid, math.exp(theta[1] - theta[0]) / dt)
     resistance, inductance, i0 = math.exp(theta[0]), math.exp(theta[1]), float(theta[2])
     return CircuitEstimate(
         circuit="field",
@@ -540,11 +566,13 @@ def estimate_armature(
     else:
         resid = residual(theta)
         _, _, jac = _levenberg_marquardt(residual, theta, max_iterations=0)
-    std = _crlb_std(jac, resid)
+    std = _crlb_std(jac, resid, math.exp(theta[1] - theta[0]) / dt)
     resistance, inductance, i0 = math.exp(theta[0]), math.exp(theta[1]), float(theta[2])
     if fit_k:
         k_value = float(theta[3])
     noise_var = 0.0
+    plain = np.array([resistance, inductance, k_value])
+    bias_bound = np.zeros(3)
     if compensate_input_noise:
         a_, b_ = kernels.zoh_coefficients(resistance, inductance, dt)
         noise_var = input_noise_variance(resid, a_, b_)
@@ -553,16 +581,34 @@ def estimate_armature(
         def compensated(x: np.ndarray) -> np.ndarray:
             return kernels.armature_swarm_costs(x, va, emf, ia, dt, True, k_arg, noise_var)
 
+        # The correction is a few percent: search only near the plain estimate. An
+        # overestimated noise variance makes the compensated cost fall without
+        # bound towards La -> 0 (gain 1/R), a spurious minimum the full range holds.
+        local = bounds.around(resistance, inductance, _COMPENSATION_FACTOR).log_bounds()
         swarm = ParticleSwarm(
-            compensated, bounds.log_bounds(), n_particles=max(20, n_particles // 2), w=w,
-            schedule=schedule, x0=np.log10([resistance, inductance]),
-            init_bounds=bounds.around(resistance, inductance, 1.3).log_bounds(), rng=rng_,
+            compensated, local, n_particles=max(20, n_particles // 2), w=w,
+            schedule=schedule, x0=np.log10([resistance, inductance]), rng=rng_,
         )  # fmt: skip
         refined = swarm.run(max(30, max_iterations))
-        resistance, inductance = (float(v) for v in 10.0**refined.x)
-        k_value, i0, resid = _armature_linear(resistance, inductance, va, emf, ia, dt, emf_constant)
-    stds = {"R": resistance * std[0], "L": inductance * std[1]}
-    stds["K"] = float(std[3]) if fit_k else 0.0
+        margin = np.minimum(refined.x - local[:, 0], local[:, 1] - refined.x)
+        if np.all(margin > 0.01 * np.log10(_COMPENSATION_FACTOR)):
+            resistance, inductance = (float(v) for v in 10.0**refined.x)
+            k_value, i0, resid = _armature_linear(
+                resistance, inductance, va, emf, ia, dt, emf_constant
+            )
+            # The Cramer-Rao bound ignores input noise; the size of the correction
+            # bounds how far input noise could have moved the estimate.
+            bias_bound = 0.5 * np.abs(np.array([resistance, inductance, k_value]) - plain)
+        else:
+            # Pressed against the edge: the compensation model does not fit this
+            # window (weak excitation, or unmodelled physics read as input noise).
+            # Keep the plain fit, and say it may be off by as much as the box.
+            noise_var = 0.0
+            bias_bound = (_COMPENSATION_FACTOR - 1.0) * np.abs(plain)
+    stds_ = np.hypot(
+        np.array([resistance * std[0], inductance * std[1], std[3] if fit_k else 0.0]), bias_bound
+    )
+    stds = {"R": float(stds_[0]), "L": float(stds_[1]), "K": float(stds_[2]) if fit_k else 0.0}
     return CircuitEstimate(
         circuit="armature",
         resistance_ohm=resistance,
