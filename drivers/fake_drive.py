@@ -1,0 +1,206 @@
+"""Simulated drives speaking the adapters' real protocols (peers of ``dcobserver fake-drive``).
+
+Each fake drive takes samples from an :class:`observer.drive_stream.DriveStream`
+in real time (or ``speedup`` times faster; device timestamps stay in simulated
+time) and serves them over a real transport: serial frames on a
+pseudo-terminal, CAN frames per ``config/p12.dbc`` on a python-can bus, a
+Modbus TCP server on 127.0.0.1. Protocol objects stay in ``drivers/``.
+
+Fault injection (for tests and demos) is by explicit, deterministic periods:
+``corrupt_every=N`` flips one bit in every N-th serial frame, and so on, so a
+test knows exactly what the adapter should have counted.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+import tty
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.serial_adc import SERIAL_P12_SCALE, encode_frame
+
+log = logging.getLogger(__name__)
+
+
+class Pacer:
+    """How many samples are due at a rate of ``rate_hz * speedup`` since :meth:`start`."""
+
+    def __init__(self, rate_hz: float, speedup: float = 1.0) -> None:
+        if not rate_hz > 0 or not speedup > 0:
+            raise ValueError(f"rate and speedup must be > 0, got {rate_hz}, {speedup}")
+        self.rate = rate_hz * speedup
+        self.sent = 0
+        self._t0 = time.monotonic()
+
+    def start(self) -> None:
+        self._t0 = time.monotonic()
+        self.sent = 0
+
+    def due(self, max_n: int | None = None) -> int:
+        """Samples due now (not yet taken); marks them taken."""
+        n = int((time.monotonic() - self._t0) * self.rate) - self.sent
+        if max_n is not None:
+            n = min(n, max_n)
+        n = max(n, 0)
+        self.sent += n
+        return n
+
+
+def to_counts(values: np.ndarray, scale: tuple[float, ...] | np.ndarray) -> np.ndarray:
+    """SI values -> int16 ADC counts (rounded, saturating like an ADC)."""
+    counts = np.rint(np.asarray(values) / np.asarray(scale))
+    return np.clip(counts, -32768, 32767).astype(np.int16)
+
+
+@dataclass
+class FaultPlan:
+    """Deterministic faults of a serial fake drive (0 disables each).
+
+    Attributes
+    ----------
+    corrupt_every : int
+        Flip one bit in every N-th frame (the CRC then fails).
+    garbage_every : int
+        Insert 1..64 random bytes before every N-th frame.
+    tear_every : int
+        Cut every N-th frame short (the rest of it is never sent).
+    """
+
+    corrupt_every: int = 0
+    garbage_every: int = 0
+    tear_every: int = 0
+
+
+class SerialFakeDrive:
+    """Serial ADC frames of a simulated drive on a pseudo-terminal.
+
+    The pseudo-terminal's slave side is the "device": open :attr:`device_path`
+    (or ``link``, a symlink to it that survives restarts of the fake drive)
+    with pyserial. Writes are non-blocking: when nobody reads and the
+    terminal's buffer is full, frames are discarded (``unsent_frames``) as a
+    real UART transmits into the void; their sequence numbers are consumed,
+    so the adapter sees the loss as a sequence gap.
+    """
+
+    def __init__(
+        self,
+        stream: Any,
+        *,
+        speedup: float = 1.0,
+        link: str | os.PathLike[str] | None = None,
+        faults: FaultPlan | None = None,
+        seed: int = 0,
+        scale: tuple[float, ...] = SERIAL_P12_SCALE,
+    ) -> None:
+        self.stream = stream
+        self.pacer = Pacer(stream.sample_rate_hz, speedup)
+        self.faults = faults or FaultPlan()
+        self.scale = np.asarray(scale)
+        self._rng = np.random.default_rng(seed)
+        self.master_fd, self._slave_fd = os.openpty()
+        # Raw mode at once: a cooked terminal would translate CR/LF and echo.
+        tty.setraw(self._slave_fd)
+        tty.setraw(self.master_fd)
+        os.set_blocking(self.master_fd, False)
+        self.device_path = os.ttyname(self._slave_fd)
+        self.link = Path(link) if link is not None else None
+        if self.link is not None:
+            tmp = self.link.with_name(self.link.name + ".tmp")
+            tmp.unlink(missing_ok=True)
+            tmp.symlink_to(self.device_path)
+            os.replace(tmp, self.link)
+        self.frames_sent = 0
+        self.unsent_frames = 0
+        self.faults_injected = 0
+        self._pending = b""
+        self._stop = threading.Event()
+
+    def _frame_bytes(self, seq: int, t_us: int, counts: np.ndarray) -> bytes:
+        frame = encode_frame(seq, t_us, counts)
+        f = self.faults
+        k = seq + 1
+        if f.corrupt_every and k % f.corrupt_every == 0:
+            b = bytearray(frame)
+            pos = int(self._rng.integers(2, len(b)))  # not the sync word: a pure CRC failure
+            b[pos] ^= 1 << int(self._rng.integers(0, 8))
+            frame = bytes(b)
+            self.faults_injected += 1
+        if f.tear_every and k % f.tear_every == 0:
+            frame = frame[: int(self._rng.integers(1, len(frame)))]
+            self.faults_injected += 1
+        if f.garbage_every and k % f.garbage_every == 0:
+            n = int(self._rng.integers(1, 65))
+            frame = self._rng.integers(0, 256, n, dtype=np.uint8).tobytes() + frame
+            self.faults_injected += 1
+        return frame
+
+    def step(self) -> int:
+        """Send the frames due now; returns how many were generated."""
+        n = self.pacer.due(max_n=4096)
+        if n == 0:
+            return 0
+        first = self.stream.index
+        samples = self.stream.take(n)
+        counts = to_counts(samples, self.scale)
+        dt_us = 1e6 / self.stream.sample_rate_hz
+        chunks = []
+        for i in range(n):
+            k = first + i
+            chunks.append(self._frame_bytes(k & 0xFFFF, int(round(k * dt_us)), counts[i]))
+        self._write(chunks)
+        return n
+
+    def _write(self, frames: list[bytes]) -> None:
+        if self._pending:
+            self._pending = self._pending[self._try_write(self._pending) :]
+        for i, frame in enumerate(frames):
+            if self._pending:
+                # The terminal is full: a real UART would be sending these into the void.
+                self.unsent_frames += len(frames) - i
+                return
+            written = self._try_write(frame)
+            if written < len(frame):
+                self._pending = frame[written:]
+            self.frames_sent += 1
+
+    def _try_write(self, data: bytes) -> int:
+        try:
+            return os.write(self.master_fd, data)
+        except BlockingIOError:
+            return 0
+
+    def run(self, stop: threading.Event | None = None, duration_s: float | None = None) -> None:
+        """Serve until ``stop`` is set or ``duration_s`` of simulated time has been sent."""
+        stop = stop or self._stop
+        self.stream.prefetch()
+        self.pacer.start()
+        limit = None if duration_s is None else int(duration_s * self.stream.sample_rate_hz)
+        while not stop.is_set():
+            self.step()
+            if limit is not None and self.stream.index >= limit:
+                break
+            stop.wait(0.002)
+
+    def close(self) -> None:
+        """Close both ends of the terminal (a reader then sees the device vanish)."""
+        self._stop.set()
+        for fd in (self.master_fd, self._slave_fd):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+def run_forever(step: Callable[[], Any], stop: threading.Event, period_s: float = 0.002) -> None:
+    """Call ``step`` every ``period_s`` until ``stop`` is set."""
+    while not stop.is_set():
+        step()
+        stop.wait(period_s)
