@@ -5,9 +5,11 @@ into a bounded buffer of samples, so the device is drained at its own pace
 whatever the consumer does. When the consumer falls behind and the buffer is
 full, the *oldest* samples are discarded and counted (``dropped`` and
 ``overrun_samples`` in the health counters): overruns are visible, never
-hidden. The pump thread never dies silently: every exception is counted in
-``errors``, logged, and answered by closing the device and reconnecting with
-exponential backoff (counted in ``reconnects``).
+hidden. ``received_samples`` counts what the pump took from the device:
+``received_samples == samples + overrun_samples + (still buffered)``. The
+pump thread never dies silently: every exception is counted in ``errors``,
+logged, and answered by closing the device and reconnecting with exponential
+backoff (counted in ``reconnects``).
 
 Timestamps. Where the protocol carries a device clock, :class:`DeviceClock`
 unwraps it and places it on the host monotonic time line: the first sample of
@@ -154,6 +156,9 @@ class PumpedSource(Source):
         gone (0 disables): it is closed and reconnected.
     """
 
+    #: Extra health counters, present (as 0) from the start.
+    counters: tuple[str, ...] = ("received_samples", "overrun_samples")
+
     def __init__(
         self,
         *,
@@ -162,6 +167,7 @@ class PumpedSource(Source):
         stale_timeout_s: float = 0.0,
     ) -> None:
         super().__init__()
+        self._health.extra.update(dict.fromkeys(self.counters, 0))
         if buffer_samples < 1:
             raise ValueError(f"buffer_samples must be >= 1, got {buffer_samples}")
         self.buffer_samples = int(buffer_samples)
@@ -249,6 +255,7 @@ class PumpedSource(Source):
         if n == 0:
             return
         overrun = 0
+        self._add(received_samples=n)
         with self._cond:
             self._chunks.append((t_ns, dict(signals)))
             self._buffered += n

@@ -226,6 +226,10 @@ class SerialAdcSource(PumpedSource):
 
     name = "serial"
     Options = SerialOptions
+    counters = (
+        *PumpedSource.counters, "frames", "crc_errors", "bad_headers", "skipped_bytes",
+        "sequence_gaps",
+    )  # fmt: skip
 
     def __init__(self, options: SerialOptions | None = None, **overrides: Any) -> None:
         opts = options if options is not None else SerialOptions()

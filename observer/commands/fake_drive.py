@@ -55,6 +55,22 @@ def configure(parser: argparse.ArgumentParser) -> None:
                    help="cut every N-th frame short")  # fmt: skip
     s.set_defaults(_run=_run_serial)
 
+    c = sub.add_parser(
+        "can", formatter_class=fmt,
+        help="CAN frames per config/p12.dbc on a python-can bus",
+        description="CAN frames per config/p12.dbc (two frames per sample) on a python-can "
+        "bus. Across processes on this machine use udp_multicast (inside a network "
+        "namespace: see the README); 'virtual' reaches only its own process, so it is "
+        "refused here; on a drive PC use socketcan.",
+    )  # fmt: skip
+    _common(c)
+    c.add_argument("--rate", type=float, default=1000.0, metavar="HZ", help="sample rate (Hz)")
+    c.add_argument("--interface", default="udp_multicast", help="python-can interface")
+    c.add_argument("--channel", default="239.74.163.2", help="python-can channel")
+    c.add_argument("--bitrate", type=int, default=0, help="bus bitrate; 0 leaves it as is")
+    c.add_argument("--dbc", default=None, help="DBC file (default: the bundled config/p12.dbc)")
+    c.set_defaults(_run=_run_can)
+
 
 def _stream(args: argparse.Namespace, rate: float) -> object:
     from observer.cli import UserError
@@ -116,6 +132,35 @@ def _run_serial(args: argparse.Namespace) -> int:
         log.info(
             "sent %d frames, %d unsent (nobody reading)", drive.frames_sent, drive.unsent_frames
         )
+    return 0
+
+
+def _run_can(args: argparse.Namespace) -> int:
+    import can
+
+    from drivers.fake_drive import CanFakeDrive
+    from observer.cli import UserError
+
+    if args.interface == "virtual":
+        raise UserError("the 'virtual' interface reaches only its own process; use udp_multicast")
+    stream = _stream(args, args.rate)
+    kwargs = {"bitrate": args.bitrate} if args.bitrate else {}
+    try:
+        bus = can.Bus(interface=args.interface, channel=args.channel, **kwargs)
+    except (can.CanError, OSError, ImportError, ValueError) as exc:
+        raise UserError(f"cannot open CAN {args.interface} {args.channel}: {exc}") from exc
+    try:
+        drive = CanFakeDrive(stream, bus, speedup=args.speedup, dbc=args.dbc)
+        stop = _stop_event()
+        stream.prefetch()  # type: ignore[attr-defined]
+        _announce(
+            f"can fake drive on {args.interface} {args.channel}, {args.rate:g} Hz x{args.speedup:g}"
+        )
+        drive.run(stop, args.duration)
+    except OSError as exc:
+        raise UserError(f"cannot load the DBC: {exc}") from exc
+    finally:
+        bus.shutdown()
     return 0
 
 
