@@ -286,3 +286,121 @@ class CanFakeDrive:
             if limit is not None and self.stream.index >= limit:
                 break
             stop.wait(0.002)
+
+
+#: Extra registers of the Modbus fake drive, to exercise the other types of a
+#: register map: int16 copies (address 20..24, scales as the serial ADC's) and
+#: the speed as int32 in units of 1e-4 rad/s, low word first (30..31).
+MODBUS_INT16_BASE = 20
+MODBUS_OMEGA_INT32 = 30
+
+
+class ModbusFakeDrive:
+    """A Modbus TCP server (pymodbus) whose registers hold the simulated drive's latest sample.
+
+    Register map (input and holding registers share memory), 32-bit values
+    high word first unless noted::
+
+        0       sample counter, uint16
+        1-2     device time, uint32 microseconds
+        3-12    va, ia, vf, if, omega as float32 (V, A, V, A, rad/s)
+        20-24   va, ia, vf, if, omega as int16 counts (x0.01 V, x0.001 A,
+                x0.02 V, x0.0001 A, x0.01 rad/s)
+        30-31   omega as int32, 1e-4 rad/s, LOW word first
+
+    The registers are filled at each request with the sample due at that
+    moment (the drive's own sample clock runs at ``sample_rate_hz *
+    speedup``). Faults: every ``exception_every``-th request is answered with
+    exception 6 (device busy); every ``stall_every``-th is answered only after
+    ``stall_s`` seconds (a client times out).
+    """
+
+    def __init__(
+        self,
+        stream: Any,
+        *,
+        speedup: float = 1.0,
+        device_id: int = 1,
+        exception_every: int = 0,
+        stall_every: int = 0,
+        stall_s: float = 0.5,
+    ) -> None:
+        self.stream = stream
+        self.pacer = Pacer(stream.sample_rate_hz, speedup)
+        self.device_id = device_id
+        self.exception_every = exception_every
+        self.stall_every = stall_every
+        self.stall_s = stall_s
+        self.requests = 0
+        self._latest = np.zeros(5)
+        self._server: Any = None
+
+    def _advance(self) -> int:
+        n = self.pacer.due()
+        if n:
+            self._latest = self.stream.take(n)[-1]
+        return self.stream.index - 1
+
+    def fill(self, registers: list[int], start: int) -> None:
+        """Write the current sample into ``registers`` (the device memory from ``start``)."""
+        import struct
+
+        k = max(self._advance(), 0)
+        t_us = int(round(k * 1e6 / self.stream.sample_rate_hz)) & 0xFFFFFFFF
+        words: dict[int, int] = {0: k & 0xFFFF, 1: t_us >> 16, 2: t_us & 0xFFFF}
+        for c, value in enumerate(self._latest):
+            hi, lo = struct.unpack(">HH", struct.pack(">f", float(value)))
+            words[3 + 2 * c], words[4 + 2 * c] = hi, lo
+        counts = to_counts(self._latest, SERIAL_P12_SCALE)
+        for c in range(5):
+            words[MODBUS_INT16_BASE + c] = int(counts[c]) & 0xFFFF
+        omega = int(np.clip(np.rint(self._latest[4] * 1e4), -(2**31), 2**31 - 1))
+        hi, lo = struct.unpack(">HH", struct.pack(">i", omega))
+        words[MODBUS_OMEGA_INT32], words[MODBUS_OMEGA_INT32 + 1] = lo, hi
+        for address, word in words.items():
+            registers[address - start] = word
+
+    async def _action(
+        self,
+        function_code: int,
+        start_address: int,
+        address: int,
+        count: int,
+        registers: list[int],
+        set_values: Any,
+    ) -> Any:
+        import asyncio
+
+        from pymodbus.constants import ExcCodes
+
+        self.requests += 1
+        if self.exception_every and self.requests % self.exception_every == 0:
+            return ExcCodes.DEVICE_BUSY
+        if self.stall_every and self.requests % self.stall_every == 0:
+            await asyncio.sleep(self.stall_s)
+        self.fill(registers, start_address)
+        return None
+
+    async def start(self, host: str = "127.0.0.1", port: int = 0) -> tuple[str, int]:
+        """Start serving; returns the bound ``(host, port)``."""
+        from pymodbus.server import ModbusTcpServer
+        from pymodbus.simulator import DataType, SimData, SimDevice
+
+        self.stream.prefetch()
+        device = SimDevice(
+            id=self.device_id,
+            simdata=[SimData(address=0, count=40, values=0, datatype=DataType.REGISTERS)],
+            action=self._action,
+        )
+        self._server = ModbusTcpServer(device, address=(host, port))
+        await self._server.serve_forever(background=True)
+        self.pacer.start()
+        self._latest = self.stream.take(1)[0]  # sample k is then current from k / rate
+        sock = self._server.transport.sockets[0]
+        bound: tuple[str, int] = sock.getsockname()[:2]
+        return bound
+
+    async def stop(self) -> None:
+        if self._server is not None:
+            await self._server.shutdown()
+            self._server = None

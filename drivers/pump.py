@@ -234,6 +234,12 @@ class PumpedSource(Source):
         out["connected"] = bool(self._device_connected and not self._closed)
         return out
 
+    @property
+    def buffered(self) -> int:
+        """Samples waiting in the buffer for the consumer."""
+        with self._cond:
+            return self._buffered
+
     def wait_connected(self, timeout: float) -> bool:
         """Block until the device was connected at least once (True) or ``timeout`` passed."""
         return self._connected_once.wait(timeout)

@@ -71,6 +71,26 @@ def configure(parser: argparse.ArgumentParser) -> None:
     c.add_argument("--dbc", default=None, help="DBC file (default: the bundled config/p12.dbc)")
     c.set_defaults(_run=_run_can)
 
+    m = sub.add_parser(
+        "modbus", formatter_class=fmt,
+        help="a Modbus TCP server on 127.0.0.1 (prints host:port)",
+        description="A Modbus TCP server whose registers hold the simulated drive's latest "
+        "sample (map in drivers/fake_drive.py: counter, device time, float32, int16 and "
+        "int32 copies); prints host:port.",
+    )  # fmt: skip
+    _common(m)
+    m.add_argument("--rate", type=float, default=200.0, metavar="HZ",
+                   help="the drive's sample (register update) rate (Hz)")  # fmt: skip
+    m.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    m.add_argument("--port", type=int, default=5020, help="TCP port (0: any free port)")
+    m.add_argument("--device-id", type=int, default=1, help="Modbus device (unit) id")
+    m.add_argument("--exception-every", type=int, default=0, metavar="N",
+                   help="answer every N-th request with exception 6 (device busy)")  # fmt: skip
+    m.add_argument("--stall-every", type=int, default=0, metavar="N",
+                   help="answer every N-th request only after --stall-s")  # fmt: skip
+    m.add_argument("--stall-s", type=float, default=0.5, help="delay of a stalled answer (s)")
+    m.set_defaults(_run=_run_modbus)
+
 
 def _stream(args: argparse.Namespace, rate: float) -> object:
     from observer.cli import UserError
@@ -161,6 +181,47 @@ def _run_can(args: argparse.Namespace) -> int:
         raise UserError(f"cannot load the DBC: {exc}") from exc
     finally:
         bus.shutdown()
+    return 0
+
+
+def _run_modbus(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from drivers.fake_drive import ModbusFakeDrive
+    from observer.cli import UserError
+
+    stream = _stream(args, args.rate)
+    if args.exception_every < 0 or args.stall_every < 0 or args.stall_s < 0:
+        raise UserError("--exception-every, --stall-every and --stall-s must be >= 0")
+    drive = ModbusFakeDrive(
+        stream, speedup=args.speedup, device_id=args.device_id,
+        exception_every=args.exception_every, stall_every=args.stall_every,
+        stall_s=args.stall_s,
+    )  # fmt: skip
+
+    async def serve() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, stop.set)
+        try:
+            host, port = await drive.start(args.host, args.port)
+        except OSError as exc:
+            raise UserError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from exc
+        _announce(f"modbus fake drive on {host}:{port}, {args.rate:g} Hz x{args.speedup:g}")
+        try:
+            if args.duration is None:
+                await stop.wait()
+            else:
+                wall = args.duration / args.speedup
+                try:
+                    await asyncio.wait_for(stop.wait(), wall)
+                except TimeoutError:
+                    pass
+        finally:
+            await drive.stop()
+
+    asyncio.run(serve())
     return 0
 
 

@@ -121,6 +121,15 @@ def to_recording(blocks: list[SampleBlock], rate_hz: float) -> Recording:
     return Recording(t=np.arange(n) / rate_hz, signals={c: v[run] for c, v in sig.items()})
 
 
+def bridged_recording(blocks: list[SampleBlock], rate_hz: float) -> tuple[Recording, int]:
+    """All the blocks as a recording, missing samples linearly interpolated; and how many."""
+    t, sig = concat(blocks)
+    k = sample_indices(t, rate_hz)
+    full = np.arange(k[-1] + 1)
+    rec = Recording(t=full / rate_hz, signals={c: np.interp(full, k, v) for c, v in sig.items()})
+    return rec, int(full.size - k.size)
+
+
 def expected_stream(rate_hz: float, n: int, seed: int) -> np.ndarray:
     """The first ``n`` samples the fake drive with this rate and seed serves (SI, unquantised)."""
     return DriveStream(sample_rate_hz=rate_hz, seed=seed).take(n)
