@@ -310,9 +310,12 @@ class ModbusFakeDrive:
 
     The registers are filled at each request with the sample due at that
     moment (the drive's own sample clock runs at ``sample_rate_hz *
-    speedup``). Faults: every ``exception_every``-th request is answered with
-    exception 6 (device busy); every ``stall_every``-th is answered only after
-    ``stall_s`` seconds (a client times out).
+    speedup``). ``framer="rtu"`` speaks RTU frames (with CRC) over the TCP
+    connection, as a serial-to-Ethernet gateway would pass them through: an
+    RTU client reaches it with the pyserial URL ``socket://host:port``.
+    Faults: every ``exception_every``-th request is answered with exception 6
+    (device busy); every ``stall_every``-th is answered only after ``stall_s``
+    seconds (a client times out).
     """
 
     def __init__(
@@ -324,8 +327,10 @@ class ModbusFakeDrive:
         exception_every: int = 0,
         stall_every: int = 0,
         stall_s: float = 0.5,
+        framer: str = "socket",
     ) -> None:
         self.stream = stream
+        self.framer = framer
         self.pacer = Pacer(stream.sample_rate_hz, speedup)
         self.device_id = device_id
         self.exception_every = exception_every
@@ -383,6 +388,7 @@ class ModbusFakeDrive:
 
     async def start(self, host: str = "127.0.0.1", port: int = 0) -> tuple[str, int]:
         """Start serving; returns the bound ``(host, port)``."""
+        from pymodbus import FramerType
         from pymodbus.server import ModbusTcpServer
         from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -392,7 +398,8 @@ class ModbusFakeDrive:
             simdata=[SimData(address=0, count=40, values=0, datatype=DataType.REGISTERS)],
             action=self._action,
         )
-        self._server = ModbusTcpServer(device, address=(host, port))
+        framer = FramerType.RTU if self.framer == "rtu" else FramerType.SOCKET
+        self._server = ModbusTcpServer(device, address=(host, port), framer=framer)
         await self._server.serve_forever(background=True)
         self.pacer.start()
         self._latest = self.stream.take(1)[0]  # sample k is then current from k / rate

@@ -97,7 +97,9 @@ class ModbusOptions:
     transport: str = dataclasses.field(default="tcp", metadata={"choices": ("tcp", "rtu")})
     host: str = "127.0.0.1"
     port: int = dataclasses.field(default=502, metadata={"min": 1, "max": 65535})
-    serial_port: str = dataclasses.field(default="/dev/ttyUSB0", metadata={"help": "RTU only"})
+    serial_port: str = dataclasses.field(
+        default="/dev/ttyUSB0", metadata={"help": "RTU only; a device or a pyserial URL"}
+    )
     baudrate: int = dataclasses.field(default=115200, metadata={"min": 1, "help": "RTU only"})
     device_id: int = dataclasses.field(default=1, metadata={"min": 0, "max": 255})
     poll_rate_hz: float = dataclasses.field(default=200.0, metadata={"min": 0.1, "max": 10000.0})

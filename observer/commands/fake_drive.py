@@ -84,6 +84,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     m.add_argument("--host", default="127.0.0.1", help="address to listen on")
     m.add_argument("--port", type=int, default=5020, help="TCP port (0: any free port)")
     m.add_argument("--device-id", type=int, default=1, help="Modbus device (unit) id")
+    m.add_argument("--framer", choices=("socket", "rtu"), default="socket",
+                   help="Modbus TCP, or RTU frames over TCP (socket://host:port)")  # fmt: skip
     m.add_argument("--exception-every", type=int, default=0, metavar="N",
                    help="answer every N-th request with exception 6 (device busy)")  # fmt: skip
     m.add_argument("--stall-every", type=int, default=0, metavar="N",
@@ -196,7 +198,7 @@ def _run_modbus(args: argparse.Namespace) -> int:
     drive = ModbusFakeDrive(
         stream, speedup=args.speedup, device_id=args.device_id,
         exception_every=args.exception_every, stall_every=args.stall_every,
-        stall_s=args.stall_s,
+        stall_s=args.stall_s, framer=args.framer,
     )  # fmt: skip
 
     async def serve() -> None:

@@ -102,10 +102,10 @@ def test_end_to_end_estimates_within_tolerance(channel, peers):
         src.read(timeout=0.1)  # subscribe before the drive starts
         peers(channel, seed=4, speedup=2)
         blocks = collect(src, int(3.2 * RATE), timeout=20)
-        health = src.health()
+    health = src.health()  # after close: the pump has stopped, the counters agree
     rec = to_recording(blocks, RATE)
     assert rec.n_samples >= 3.2 * RATE and health["errors"] == 0 and health["dropped"] == 0
-    assert health["frames"] == 2 * health["received_samples"]
+    assert 0 <= health["frames"] - 2 * health["received_samples"] <= 1  # one may await its pair
     est = estimate_recording(rec)
     f, a = est["field"], est["armature"]
     assert f.resistance_ohm == pytest.approx(P12.field_resistance_ohm, rel=0.01)

@@ -205,3 +205,21 @@ def test_consumer_slower_than_polling_overruns_are_counted(fake_modbus):
     buffered = src.buffered
     assert 0 < buffered <= 40
     assert health["samples"] + health["overrun_samples"] + buffered == health["received_samples"]
+
+
+def test_rtu_framing_through_a_serial_url(fake_modbus):
+    """RTU frames (CRC-16/MODBUS) over pyserial's socket:// URL to an RTU-framing server."""
+    _, port = fake_modbus("--port", "0", "--framer", "rtu", "--seed", "3")
+    options = ModbusOptions(
+        transport="rtu", serial_port=f"socket://127.0.0.1:{port}", poll_rate_hz=50,
+        timeout_s=0.3, reconnect_max_s=0.2,
+    )  # fmt: skip
+    with ModbusSource(options) as src:
+        blocks = collect(src, 5, timeout=20)
+        health = src.health()
+    assert health["errors"] == 0 and health["polls"] >= 5
+    t, sig = concat(blocks)
+    expected = expected_stream(RATE, 3000, seed=3)
+    got = np.column_stack([sig[c] for c in ("va", "ia", "vf", "if", "omega")])
+    k = locate(got[0], expected.astype(np.float32), tol=np.full(5, 1e-6))
+    np.testing.assert_array_equal(got[0], expected[k].astype(np.float32))
