@@ -111,30 +111,36 @@ class DeviceClock:
 
         ``host_ns`` is the host monotonic time at which the last of them was received.
         """
-        raw = np.asarray(raw, dtype=np.int64)
-        out = np.empty(raw.shape[0], dtype=np.int64)
-        for k in range(raw.shape[0]):
-            r = int(raw[k]) % self.wrap
-            if self._last_raw is not None:
-                step = ((r - self._last_raw) % self.wrap) * self.tick_ns
-                if 0 < step <= self.max_step_ns:
-                    t = self._last_ns + step
-                else:
-                    t = self._anchor(raw, k, host_ns)
+        raw = np.asarray(raw, dtype=np.int64) % self.wrap
+        n = raw.shape[0]
+        if n == 0:
+            return np.empty(0, dtype=np.int64)
+        previous = np.empty(n, dtype=np.int64)
+        previous[0] = -1 if self._last_raw is None else self._last_raw
+        previous[1:] = raw[:-1]
+        steps = ((raw - previous) % self.wrap) * self.tick_ns
+        restart = (steps <= 0) | (steps > self.max_step_ns)
+        restart[0] |= self._last_raw is None
+        steps[restart] = 0
+        out = np.empty(n, dtype=np.int64)
+        edges = [0, *np.flatnonzero(restart).tolist(), n]
+        edges = sorted(set(edges))
+        last = self._last_ns
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            offsets = np.cumsum(steps[a:b])
+            if restart[a]:
+                self.reanchors += 1
+                # The last sample of the batch arrived at host_ns; an earlier
+                # segment (a restart inside the batch) just follows the last time.
+                base = host_ns - int(offsets[-1]) if b == n else last + 1
+                base = max(base, last + 1)  # never back in time, even across a restart
             else:
-                t = self._anchor(raw, k, host_ns)
-            out[k] = t
-            self._last_raw = r
-            self._last_ns = t
+                base = last
+            out[a:b] = base + offsets
+            last = int(out[b - 1])
+        self._last_raw = int(raw[-1])
+        self._last_ns = last
         return out
-
-    def _anchor(self, raw: np.ndarray, k: int, host_ns: int) -> int:
-        # The last sample of the batch arrived at host_ns; earlier ones before it.
-        remaining = ((int(raw[-1]) - int(raw[k])) % self.wrap) * self.tick_ns
-        t = host_ns - min(remaining, self.max_step_ns * raw.shape[0])
-        self.reanchors += 1
-        # Never go backwards on the host time line, even across a device restart.
-        return max(t, self._last_ns + 1)
 
 
 class PumpedSource(Source):

@@ -208,8 +208,8 @@ def _run_modbus(args: argparse.Namespace) -> int:
             loop.add_signal_handler(sig, stop.set)
         try:
             host, port = await drive.start(args.host, args.port)
-        except OSError as exc:
-            raise UserError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from exc
+        except (OSError, RuntimeError) as exc:  # pymodbus raises RuntimeError when bind fails
+            raise UserError(f"cannot listen on {args.host}:{args.port}: {exc}") from exc
         _announce(f"modbus fake drive on {host}:{port}, {args.rate:g} Hz x{args.speedup:g}")
         try:
             if args.duration is None:
