@@ -11,7 +11,8 @@ complete when every message of the map has arrived with the same counter.
 Health extras: ``frames`` (decoded), ``unknown_ids`` (frames whose ID the DBC
 does not know: normal traffic of other nodes on a shared bus, skipped and not
 an error), ``short_frames`` and ``undecodable`` (bad frames, counted in
-``errors``), ``incomplete_samples`` (a frame of a sample lost: the rest is
+``errors``), ``error_frames`` and ``remote_frames`` (skipped),
+``incomplete_samples`` (a frame of a sample lost: the rest is
 discarded), ``counter_gaps``; lost samples are counted in ``dropped``.
 
 Timestamps: device time where the map names a time signal (``time``, a
@@ -110,7 +111,7 @@ class CanSource(PumpedSource):
     Options = CanOptions
     counters = (
         *PumpedSource.counters, "frames", "unknown_ids", "short_frames", "undecodable",
-        "incomplete_samples", "counter_gaps",
+        "incomplete_samples", "counter_gaps", "error_frames", "remote_frames",
     )  # fmt: skip
 
     def __init__(self, options: CanOptions | None = None, **overrides: Any) -> None:
@@ -200,7 +201,17 @@ class CanSource(PumpedSource):
         deadline = time.monotonic() + timeout
         batch_end: float | None = None
         wait = timeout
-        counts = {"frames": 0, "unknown_ids": 0, "short_frames": 0, "undecodable": 0}
+        counts = dict.fromkeys(
+            (
+                "frames",
+                "unknown_ids",
+                "short_frames",
+                "undecodable",
+                "error_frames",
+                "remote_frames",
+            ),
+            0,
+        )
         while True:
             try:
                 msg = bus.recv(wait)
@@ -239,6 +250,7 @@ class CanSource(PumpedSource):
     def _take(self, msg: Any, counts: dict[str, int]) -> tuple[list[float], int] | None:
         """Decode one frame; a sample's row and device time when it completes one."""
         if msg.is_error_frame or msg.is_remote_frame:
+            counts["error_frames" if msg.is_error_frame else "remote_frames"] += 1
             return None
         dec = self._decoders.get(msg.arbitration_id)
         if dec is None:

@@ -104,6 +104,8 @@ class SerialFakeDrive:
         self.faults = faults or FaultPlan()
         self.scale = np.asarray(scale)
         self._rng = np.random.default_rng(seed)
+        if link is not None and Path(link).exists() and not Path(link).is_symlink():
+            raise FileExistsError(f"{link} exists and is not a symlink; not replacing it")
         self.master_fd, self._slave_fd = os.openpty()
         # Raw mode at once: a cooked terminal would translate CR/LF and echo.
         tty.setraw(self._slave_fd)
@@ -191,6 +193,9 @@ class SerialFakeDrive:
     def close(self) -> None:
         """Close both ends of the terminal (a reader then sees the device vanish)."""
         self._stop.set()
+        link = getattr(self, "link", None)
+        if link is not None and link.is_symlink() and os.readlink(link) == self.device_path:
+            link.unlink()  # only our own link: a newer fake drive may have taken it over
         for fd in (self.master_fd, self._slave_fd):
             try:
                 os.close(fd)

@@ -26,6 +26,10 @@ failures as bad frames (``errors``) and sequence gaps as ``dropped`` samples
 Scaling: channel ``k`` of a frame is ``raw * scale[k] + offset[k]`` in SI
 units and is named by ``channels[k]`` (an empty name ignores that channel).
 
+Samples lost while the device is away are not counted: after a reconnect the
+sequence counter starts afresh (the device may have restarted); the time gap
+shows in the timestamps.
+
 Timestamps: device time (the frame's microsecond counter, see
 :class:`drivers.pump.DeviceClock`), anchored to host monotonic time at the
 first frame of each connection.

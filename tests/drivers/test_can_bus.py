@@ -129,6 +129,8 @@ def test_unknown_ids_short_frames_and_lost_frames_are_counted_and_skipped(channe
                     bus.send(
                         can.Message(arbitration_id=0x7FF, data=b"\x01\x02", is_extended_id=False)
                     )
+                if k == 150:  # a bus error, as a controller reports it
+                    bus.send(can.Message(is_error_frame=True, is_extended_id=False))
                 if k != 100:  # sample 100 loses its armature frame
                     bus.send(armature)
                 if k % 60 == 20:  # a short frame with a known ID instead of the real one
@@ -142,7 +144,7 @@ def test_unknown_ids_short_frames_and_lost_frames_are_counted_and_skipped(channe
             health = src.health()
     finally:
         bus.shutdown()
-    assert health["unknown_ids"] == 6
+    assert health["unknown_ids"] == 6 and health["error_frames"] == 1
     assert health["short_frames"] == 5
     assert health["errors"] == 5  # short frames are bad frames; foreign IDs are not
     assert health["dropped"] == 6 and health["incomplete_samples"] == 6
