@@ -9,6 +9,7 @@ import shutil
 import subprocess
 import sys
 import threading
+import time
 
 import can
 import numpy as np
@@ -226,3 +227,14 @@ def test_cross_process_udp_multicast_inside_a_private_network_namespace(tmp_path
     est = estimate_recording(rec, ("field",))
     assert est["field"].resistance_ohm == pytest.approx(P12.field_resistance_ohm, rel=0.01)
     assert est["field"].inductance_h == pytest.approx(P12.field_inductance_h, rel=0.03)
+
+
+def test_without_a_device_clock_samples_carry_host_monotonic_time(channel, peers):
+    before = time.monotonic_ns()
+    with _source(channel, time="") as src:
+        src.read(timeout=0.1)
+        peers(channel, seed=1)
+        blocks = collect(src, 200, timeout=20)
+    after = time.monotonic_ns()
+    t, _ = concat(blocks)
+    assert before < t[0] and t[-1] < after and np.all(np.diff(t) > 0)

@@ -223,3 +223,19 @@ def test_rtu_framing_through_a_serial_url(fake_modbus):
     got = np.column_stack([sig[c] for c in ("va", "ia", "vf", "if", "omega")])
     k = locate(got[0], expected.astype(np.float32), tol=np.full(5, 1e-6))
     np.testing.assert_array_equal(got[0], expected[k].astype(np.float32))
+
+
+def test_without_counter_and_clock_every_poll_is_a_sample_on_host_time(fake_modbus):
+    import time
+
+    _, port = fake_modbus("--port", "0")
+    regs = [RegisterSpec(c, 3 + 2 * k, "float32") for k, c in enumerate(("va", "ia"))]
+    before = time.monotonic_ns()
+    with _source(port, poll_rate_hz=400, registers=regs) as src:
+        blocks = collect(src, 100, timeout=20)
+    health = src.health()
+    after = time.monotonic_ns()
+    t, sig = concat(blocks)
+    assert set(sig) == {"va", "ia"}
+    assert before < t[0] and t[-1] < after and np.all(np.diff(t) > 0)
+    assert health["received_samples"] == health["polls"] and health["repeated_polls"] == 0
