@@ -14,6 +14,10 @@ import logging
 import signal
 import sys
 import threading
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from observer.drive_stream import DriveStream
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +98,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     m.set_defaults(_run=_run_modbus)
 
 
-def _stream(args: argparse.Namespace, rate: float) -> object:
+def _stream(args: argparse.Namespace, rate: float) -> DriveStream:
     from observer.cli import UserError
     from observer.drive_stream import DriveStream
     from observer.motor import MOTORS
@@ -144,7 +148,7 @@ def _run_serial(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"cannot create the pseudo-terminal or link: {exc}") from exc
     stop = _stop_event()
-    stream.prefetch()  # type: ignore[attr-defined]  # compile before announcing: no start-up burst
+    stream.prefetch()  # compile before announcing: no start-up burst
     where = drive.device_path + (f" (link {args.link})" if args.link else "")
     _announce(f"serial fake drive on {where}, {args.rate:g} Hz x{args.speedup:g}")
     try:
@@ -174,7 +178,7 @@ def _run_can(args: argparse.Namespace) -> int:
     try:
         drive = CanFakeDrive(stream, bus, speedup=args.speedup, dbc=args.dbc)
         stop = _stop_event()
-        stream.prefetch()  # type: ignore[attr-defined]
+        stream.prefetch()
         _announce(
             f"can fake drive on {args.interface} {args.channel}, {args.rate:g} Hz x{args.speedup:g}"
         )
