@@ -69,7 +69,9 @@ frame_st = st.tuples(
 )
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(
+    max_examples=300, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow]
+)
 @given(data=st.binary(max_size=600), cuts=st.lists(st.integers(0, 600), max_size=8))
 def test_fuzz_random_bytes_never_raise_and_only_valid_frames_come_out(data, cuts):
     parser = FrameParser()
@@ -81,7 +83,7 @@ def test_fuzz_random_bytes_never_raise_and_only_valid_frames_come_out(data, cuts
         assert frame in data  # a frame that really was in the input, CRC-valid by construction
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=200, deadline=None, database=None)
 @given(
     frames=st.lists(frame_st, min_size=1, max_size=12),
     garbage=st.lists(st.binary(max_size=40), min_size=13, max_size=13),
