@@ -30,6 +30,9 @@ log = logging.getLogger(__name__)
 #: name -> (module, class). Adapters add themselves here.
 BACKENDS: dict[str, tuple[str, str]] = {
     "replay": ("replay.source", "ReplaySource"),
+    "serial": ("drivers.serial_adc", "SerialAdcSource"),
+    "modbus": ("drivers.modbus", "ModbusSource"),
+    "can": ("drivers.can_bus", "CanSource"),
 }
 
 ENTRY_POINT_GROUP = "dcobserver.sources"

@@ -28,6 +28,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "observer.commands.estimate",
         "estimate field and armature parameters of a recording",
     ),
+    "fake-drive": (
+        "observer.commands.fake_drive",
+        "serve a simulated drive over CAN, serial or Modbus (no hardware needed)",
+    ),
 }
 
 EXIT_USAGE = 2
