@@ -105,9 +105,9 @@ class QualityConfig:
     accepted value (quality ``"held"``) instead of moving.
     """
 
-    R: float = dataclasses.field(default=0.003, metadata={"check": _positive})
+    R: float = dataclasses.field(default=0.002, metadata={"check": _positive})
     L: float = dataclasses.field(default=0.015, metadata={"check": _positive})
-    K: float = dataclasses.field(default=0.003, metadata={"check": _positive})
+    K: float = dataclasses.field(default=0.002, metadata={"check": _positive})
 
 
 @dataclass(frozen=True)

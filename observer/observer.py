@@ -66,6 +66,9 @@ class _Tracker:
     rms_history: deque[float] = field(default_factory=lambda: deque(maxlen=20))
     # Values of a parameter that jumped from its accepted value, awaiting confirmation.
     candidates: dict[str, deque[float]] = field(default_factory=dict)
+    # Recent accepted values per parameter: jumps are measured from their median,
+    # so a slow slide of small biased steps is caught too.
+    recent: dict[str, deque[float]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -323,7 +326,7 @@ class SlidingWindowObserver:
         raw = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}
         quality: dict[str, str] = {}
         rel_std: dict[str, float | None] = {}
-        previous = dict(tracker.accepted)
+        reference = {p: statistics.median(v) for p, v in tracker.recent.items() if v}
         jumped = False
         identified = {}
         for p in CIRCUIT_PARAMS[circuit]:
@@ -341,7 +344,7 @@ class SlidingWindowObserver:
                 quality[p] = "held" if p in tracker.accepted else "none"
                 continue
             assert value is not None
-            if p in previous and abs(value / previous[p] - 1.0) > agree[p]:
+            if p in reference and abs(value / reference[p] - 1.0) > agree[p]:
                 # A jump counts only once `confirm_windows` windows in a row agree on it.
                 jumped = True
                 pending = tracker.candidates.setdefault(p, deque(maxlen=cfg.confirm_windows))
@@ -350,9 +353,15 @@ class SlidingWindowObserver:
                 if len(pending) < cfg.confirm_windows or spread > agree[p]:
                     quality[p] = "unconfirmed"
                     continue
-            tracker.candidates.pop(p, None)
+            confirmed = tracker.candidates.pop(p, None)
             quality[p] = "ok"
             tracker.accepted[p] = float(value)
+            recent = tracker.recent.setdefault(p, deque(maxlen=9))
+            if confirmed:
+                recent.clear()  # a confirmed change: the new level is the reference
+                recent.extend(confirmed)
+            else:
+                recent.append(float(value))
         history = list(tracker.rms_history)
         degraded = len(history) >= 3 and est.rms_a > cfg.degrade_ratio * statistics.median(history)
         tracker.rms_history.append(est.rms_a)
@@ -410,9 +419,16 @@ def warm_up_kernels() -> float:
 
     started = time.monotonic()
     rec = simulate(P12, duration_s=0.2, sample_rate_hz=1000.0, noise=0.002, seed=0)
-    estimate_field(rec["vf"], rec["if"], rec.dt, n_particles=4, max_iterations=2, rng=0)
-    estimate_armature(
-        rec["va"], rec["ia"], rec["if"], rec["omega"], rec.dt,
-        n_particles=4, max_iterations=2, rng=0,
-    )  # fmt: skip
+    # Only compilation matters here: a fit of 0.2 s may fail, the kernels are loaded anyway.
+    try:
+        estimate_field(rec["vf"], rec["if"], rec.dt, n_particles=4, max_iterations=2, rng=0)
+    except (ArithmeticError, ValueError):
+        pass
+    try:
+        estimate_armature(
+            rec["va"], rec["ia"], rec["if"], rec["omega"], rec.dt,
+            n_particles=4, max_iterations=2, rng=0,
+        )  # fmt: skip
+    except (ArithmeticError, ValueError):
+        pass
     return time.monotonic() - started
