@@ -47,7 +47,7 @@ def _load(path: str) -> tuple[Any, Any]:
     from observer.config import load_config
     from observer.daemon import make_source
 
-    config = load_config(path)
+    config: Any = load_config(path)
     source = make_source(config, path, Path(path).resolve().parent)
     return config, source
 
