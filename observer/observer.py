@@ -88,7 +88,8 @@ def check_window(window: Window, max_gap_periods: float) -> tuple[str, float]:
 
     Reasons: ``"too_few_samples"``, ``"time_jump"`` (time not increasing),
     ``"gap"`` (a sample interval above ``max_gap_periods`` median periods),
-    ``"stuck:<channel>"`` (a channel that never changes).
+    ``"stuck:<channel>"`` (a channel repeating one value for more than a tenth
+    of the window, at least 20 samples: a frozen sensor or a stale register).
     """
     n = len(window)
     if n < 20:
@@ -104,9 +105,18 @@ def check_window(window: Window, max_gap_periods: float) -> tuple[str, float]:
             continue  # a channel the source does not provide
         if np.any(np.isnan(values)):
             return f"missing:{name}", period / _NS
-        if float(values.max()) == float(values.min()):
+        if _longest_repeat(values) > max(20, n // 10):
             return f"stuck:{name}", period / _NS
     return "", period / _NS
+
+
+def _longest_repeat(values: np.ndarray) -> int:
+    """Length of the longest run of identical consecutive samples (a frozen sensor)."""
+    same = np.concatenate(([False], values[1:] == values[:-1], [False]))
+    edges = np.flatnonzero(same[1:] != same[:-1])
+    if edges.size == 0:
+        return 1
+    return int((edges[1::2] - edges[::2]).max()) + 1
 
 
 def _decimated(values: np.ndarray, k: int) -> np.ndarray:
