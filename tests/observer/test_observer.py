@@ -1,4 +1,4 @@
-"""Sliding-window observer on simulated drives: convergence, held parameters, determinism, faults."""
+"""Sliding-window observer on simulated drives: convergence, held values, determinism, faults."""
 
 from __future__ import annotations
 
