@@ -19,6 +19,7 @@ after ``retry_s``.
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import math
@@ -113,6 +114,9 @@ HEALTH_SCHEMA: dict[str, Any] = {
 }
 
 
+_FILE_NUMBERS = itertools.count(1)  # per process, across McapLog instances (reloads)
+
+
 def _json_safe(value: Any) -> Any:
     if isinstance(value, float):
         return value if math.isfinite(value) else None
@@ -137,7 +141,8 @@ class _File:
 
     def __init__(self, path: Path, chunk_size: int) -> None:
         self.path = path
-        self.stream: IO[bytes] = open(path, "wb")  # noqa: SIM115 - closed in close()
+        # "xb": never overwrite a log, even one of the same second and process.
+        self.stream: IO[bytes] = open(path, "xb")  # noqa: SIM115 - closed in finish()
         try:
             self.writer = Writer(
                 self.stream, chunk_size=chunk_size, compression=CompressionType.ZSTD
@@ -281,7 +286,7 @@ class McapLog:
             return True
         if time.monotonic() < self._next_try:
             return False
-        self._seq += 1
+        self._seq = next(_FILE_NUMBERS)
         stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
         name = f"{self.config.prefix}-{self.drive_id}-{stamp}-{os.getpid()}-{self._seq:04d}.mcap"
         try:

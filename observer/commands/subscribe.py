@@ -18,6 +18,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--connect", action="append", default=None, metavar="ENDPOINT",
         help="endpoint of a daemon or router (repeatable)",
     )  # fmt: skip
+    parser.add_argument(
+        "--listen", action="append", default=None, metavar="ENDPOINT",
+        help="listen here for daemons that connect to us (repeatable)",
+    )  # fmt: skip
     parser.add_argument("--mode", choices=("peer", "client"), default="peer")
     parser.add_argument("--json", action="store_true", help="print each sample's JSON as is")
     parser.add_argument("--count", type=int, default=0, help="exit after N samples (0: never)")
@@ -56,8 +60,11 @@ def main(args: argparse.Namespace) -> int:
     from observer.config import ZenohConfig
     from observer.zenohpub import zenoh_config_json
 
-    connect = args.connect or ["tcp/127.0.0.1:7447"]
-    cfg = ZenohConfig(mode=args.mode, listen=[], connect=connect)
+    listen = args.listen or []
+    connect = (
+        args.connect if args.connect is not None else ([] if listen else ["tcp/127.0.0.1:7447"])
+    )
+    cfg = ZenohConfig(mode=args.mode, listen=listen, connect=connect)
     try:
         session = zenoh.open(zenoh.Config.from_json5(zenoh_config_json(cfg)))
     except Exception as exc:
@@ -71,7 +78,8 @@ def main(args: argparse.Namespace) -> int:
             pass
 
     sub = session.declare_subscriber(args.keyexpr, on_sample)
-    print(f"subscribed to {args.keyexpr} via {', '.join(connect)}", file=sys.stderr, flush=True)
+    via = ", ".join([*connect, *(f"listening on {e}" for e in listen)])
+    print(f"subscribed to {args.keyexpr} via {via}", file=sys.stderr, flush=True)
     if not args.json:
         print(HEADER, flush=True)
     received = 0
