@@ -24,6 +24,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument("--mode", choices=("peer", "client"), default="peer")
     parser.add_argument("--json", action="store_true", help="print each sample's JSON as is")
+    parser.add_argument(
+        "--latest", action="store_true",
+        help="query dcobserver/*/latest once (KEYEXPR defaults to it) and exit",
+    )  # fmt: skip
     parser.add_argument("--count", type=int, default=0, help="exit after N samples (0: never)")
     parser.add_argument(
         "--timeout", type=float, default=0.0, help="exit after S seconds (0: never)"
@@ -69,6 +73,11 @@ def main(args: argparse.Namespace) -> int:
         session = zenoh.open(zenoh.Config.from_json5(zenoh_config_json(cfg)))
     except Exception as exc:
         raise UserError(f"cannot open a Zenoh session: {exc}") from None
+    if args.latest:
+        try:
+            return _query_latest(session, args)
+        finally:
+            session.close()
     samples: queue.Queue[tuple[str, bytes]] = queue.Queue(1000)
 
     def on_sample(sample: Any) -> None:  # zenoh thread: hand over, never block
@@ -104,3 +113,24 @@ def main(args: argparse.Namespace) -> int:
         sub.undeclare()
         session.close()
     return 0
+
+
+def _query_latest(session: Any, args: Any) -> int:
+    """Ask every daemon's queryable for its latest estimate; retry until one answers."""
+    keyexpr = args.keyexpr if args.keyexpr != "dcobserver/*/estimate" else "dcobserver/*/latest"
+    deadline = time.monotonic() + (args.timeout if args.timeout > 0 else 10.0)
+    if not args.json:
+        print(HEADER, flush=True)
+    while time.monotonic() < deadline:
+        answered = 0
+        for reply in session.get(keyexpr, timeout=1.0):
+            if reply.ok is None:
+                continue
+            answered += 1
+            key, payload = str(reply.ok.key_expr), reply.ok.payload.to_bytes()
+            print(payload.decode() if args.json else _row(key, json.loads(payload)), flush=True)
+        if answered:
+            return 0
+        time.sleep(0.2)
+    print(f"no answer to {keyexpr}", file=sys.stderr)
+    return 1

@@ -292,9 +292,18 @@ def test_kill_9_leaves_a_log_readable_to_the_last_second_and_recover_fixes_it(
     tmp_path, children, ra_rise_recording
 ):
     log_dir = tmp_path / "logs"
-    cfg = _config(tmp_path, ra_rise_recording, speed=2.0, loop=True, log_dir=log_dir)
+    port = _free_port()
+    zenoh = f'listen = ["tcp/127.0.0.1:{port}"]'
+    cfg = _config(tmp_path, ra_rise_recording, speed=2.0, loop=True, log_dir=log_dir, zenoh=zenoh)
     daemon = children(["run", "--config", str(cfg), "--quiet-estimates"])
     daemon.wait_line("MCAP log: writing", timeout=60)
+    # Meanwhile another process asks the queryable for the latest estimate.
+    query = children(
+        ["subscribe", "--latest", "--json", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "30"]
+    )
+    assert query.proc.wait(60) == 0, "".join(query.stderr)
+    latest = json.loads(next(x for x in query.stdout if x.startswith("{")))
+    assert latest["drive_id"] == "test" and latest["armature"]["R"] > 0
     (log_file,) = log_dir.glob("*.mcap")
     deadline = time.monotonic() + 60
     seen = 0
