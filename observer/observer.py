@@ -119,10 +119,13 @@ def _longest_repeat(values: np.ndarray) -> int:
     return int((edges[1::2] - edges[::2]).max()) + 1
 
 
-def _decimated(values: np.ndarray, k: int) -> np.ndarray:
+def _decimated(values: np.ndarray, k: int, *, sample: bool) -> np.ndarray:
+    """Every ``k``-th sample (``sample``) or the mean of each ``k`` samples."""
     if k == 1:
         return values
     n = (values.size // k) * k
+    if sample:
+        return values[:n:k].copy()
     return values[:n].reshape(-1, k).mean(axis=1)
 
 
@@ -254,15 +257,13 @@ class SlidingWindowObserver:
             "n_samples": len(window),
             "sample_rate_hz": 1.0 / period_s,
         }
-        k = self.config.decimate
-        dt = period_s * k
-        signals = {name: _decimated(v, k) for name, v in window.signals.items()}
+        signals = dict(window.signals)
         flags: list[str] = []
         for circuit in self.circuits:
             if any(np.isnan(signals[c][0]) for c in CIRCUIT_CHANNELS[circuit]):
                 continue  # the source lacks a channel this circuit needs
             try:
-                out[circuit] = self._estimate_circuit(circuit, index, signals, dt)
+                out[circuit] = self._estimate_circuit(circuit, index, signals, period_s)
             except (EstimationError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
                 self.counts[f"{circuit}_failed"] += 1
                 flags.append(f"{circuit}: {exc}")
@@ -290,9 +291,16 @@ class SlidingWindowObserver:
         return out
 
     def _estimate_circuit(
-        self, circuit: str, index: int, s: dict[str, np.ndarray], dt: float
+        self, circuit: str, index: int, window: dict[str, np.ndarray], period_s: float
     ) -> dict[str, Any]:
         cfg = self.config
+        k = cfg.decimate
+        dt = period_s * k
+        # Decimation keeps the zero-order-hold model: inputs (voltages, the EMF's
+        # if and omega) averaged over each new period, outputs (the winding's
+        # current) sampled at its start.
+        outputs = {"field": ("if",), "armature": ("ia",)}[circuit]
+        s = {c: _decimated(window[c], k, sample=c in outputs) for c in CIRCUIT_CHANNELS[circuit]}
         tracker = self._trackers[circuit]
         rng = np.random.default_rng([cfg.seed, index, _CIRCUIT_INDEX[circuit]])
         full: SearchRange
