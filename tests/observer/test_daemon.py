@@ -376,3 +376,23 @@ def test_systemd_unit_verifies_cleanly(tmp_path):
     assert result.returncode == 0 and output == "", output
     for key in ("Type=notify", "WatchdogSec=", "Restart=on-failure", "NUMBA_CACHE_DIR="):
         assert key in text
+
+
+def test_run_without_arguments_runs_the_demo_and_converges(children):
+    """The README's main command: the bundled demo, estimates near the P-12's values."""
+    assert (REPO / "replay" / "data" / "demo.mcap").stat().st_size < 5e6
+    daemon = children(["run"])
+    pattern = re.compile(r"armature: R=([\d.]+) ohm \(ok\), L=[\d.e-]+ H \(\w+\), K=([\d.]+) H")
+    deadline = time.monotonic() + 60
+    while True:
+        line = daemon.wait_line(r"window \d+ t=", timeout=max(1.0, deadline - time.monotonic()))
+        m = pattern.search(line)
+        field = re.search(r"field: R=([\d.]+) ohm \(ok\)", line)
+        if m and field:
+            break
+    assert float(m.group(1)) == pytest.approx(P12.armature_resistance_ohm, rel=0.02)
+    assert float(m.group(2)) == pytest.approx(P12.emf_constant_h, rel=0.02)
+    field_r = float(field.group(1))
+    assert field_r == pytest.approx(P12.field_resistance_ohm, rel=0.01)
+    daemon.proc.send_signal(signal.SIGINT)
+    assert daemon.proc.wait(30) == 0
