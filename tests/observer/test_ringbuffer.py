@@ -69,25 +69,30 @@ def test_write_does_not_allocate_storage():
     assert (id(ring._t), id(ring._data), ring._data.ctypes.data) == ids
 
 
-@pytest.mark.parametrize("capacity,consumer_delay", [(4096, False), (64, True)])
+@pytest.mark.parametrize("capacity,consumer_delay", [(8192, False), (64, True)])
 def test_threads_every_sample_seen_once_or_counted(capacity, consumer_delay):
     """A producer thread writes 200 blocks; the consumer sees each sample once, in order,
     or counts it as overrun: seen + lost == written, and every copy is internally consistent."""
     ring = RingBuffer(capacity, CH)
     done = threading.Event()
     go = threading.Event()
+    lapped = threading.Event()
     n_blocks, n = 200, 37
 
     def produce():
         go.wait()
         for b in range(n_blocks):
             ring.write(_block(b * n, n))
+            if b == 2:
+                lapped.set()  # 111 samples written: a 64-sample ring has lapped
         done.set()
 
     seen = []
     thread = threading.Thread(target=produce)
     thread.start()
     go.set()
+    if consumer_delay:
+        lapped.wait(10)  # the consumer starts late: an overrun is certain
     slow = threading.Event()
     while True:
         finished = done.is_set()
