@@ -52,6 +52,7 @@ def main() -> int:
     parser.add_argument("--rate", type=float, default=10_000.0, help="sample rate (Hz)")
     parser.add_argument("--decimate", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--offline-duration", type=float, default=60.0)
+    parser.add_argument("--no-log", action="store_true", help="run without the MCAP log")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
 
@@ -71,10 +72,14 @@ def main() -> int:
         config = Config(
             observer=obs,
             zenoh=ZenohConfig(listen=[f"tcp/127.0.0.1:{_free_port()}"]),
-            log=LogConfig(dir=str(tmp / f"log-d{k}")),
+            log=LogConfig(dir="" if args.no_log else str(tmp / f"log-d{k}")),
         )
         source = ReplaySource(ReplayOptions(path=str(path), speed=1.0, block_s=0.01))
-        daemon = Daemon(config, source, sample_rate_hint_hz=args.rate)
+        elapsed: list[float] = []
+        daemon = Daemon(
+            config, source, sample_rate_hint_hz=args.rate,
+            on_estimate=lambda e, store=elapsed: store.append(e["elapsed_ms"]),
+        )  # fmt: skip
         daemon.start()
         started = time.monotonic()
         while time.monotonic() - started < args.duration and not daemon.finished.is_set():
@@ -89,7 +94,9 @@ def main() -> int:
             f"estimates, ring overruns {health['ring']['overruns']} "
             f"({health['ring']['overrun_samples']} samples), late windows "
             f"{windows.get('late', 0)}, latency p50 {q[49]:.1f} ms p99 {q[98]:.1f} ms "
-            f"max {lat[-1]:.1f} ms, zenoh published {health['zenoh']['published']}, "
+            f"max {lat[-1]:.1f} ms (estimation alone p50 {statistics.median(elapsed):.1f} ms "
+            f"p99 {statistics.quantiles(elapsed, n=100)[98]:.1f} ms), "
+            f"zenoh published {health['zenoh']['published']}, "
             f"log {health['log'].get('bytes', 0) / 1e6:.1f} MB"
         )
 
