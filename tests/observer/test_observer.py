@@ -187,3 +187,20 @@ def test_faults_skip_windows_flag_them_and_estimation_resumes(p12_recording):
     assert obs2.health()["windows"].get("skipped:time_jump", 0) >= 1
     late = [r for r in results2 if r.t1_ns < 3600 * 10**9 and r.estimate is not None]
     assert late, "estimates resume on the stepped-back clock"
+
+
+def test_window_shorter_than_a_few_field_time_constants_is_reported():
+    from observer import kernels
+
+    rng = np.random.default_rng(2)
+    dt, n = 1e-3, 4000
+    vf = np.where((np.arange(n) // 200) % 2 == 0, 220.0, 120.0)  # steps every 0.2 s
+    i_f = kernels.simulate_rl(185.0, 55.0, 1.0, vf, dt) + 1e-4 * rng.standard_normal(n)
+    vf = vf + 0.05 * rng.standard_normal(n)  # measured: never exactly repeated (else "stuck")
+    block = SampleBlock(np.arange(n) * 1_000_000, {"vf": vf, "if": i_f})
+    obs, results = _run([block], circuits="field", window_s=0.5, hop_s=0.25)
+    fields = [r.estimate["field"] for r in results]
+    assert fields[-1]["L"] == pytest.approx(55.0, rel=0.02)  # tau = 0.3 s
+    assert "window_short_for_field" in obs.health()["warnings"]
+    obs_ok, _ = _run([block], circuits="field", window_s=1.0, hop_s=0.5)
+    assert "window_short_for_field" not in obs_ok.health()["warnings"]
