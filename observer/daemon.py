@@ -150,6 +150,7 @@ class Daemon:
                 self._log_new_samples()
                 for result in self.observer.process_ready(live=True):
                     self._emit(result)
+                    self._log_new_samples()
             except Exception as exc:  # never die silently: count, log, go on
                 self.observer.counts["observer_errors"] += 1
                 self.observer_error = f"{type(exc).__name__}: {exc}"

@@ -31,7 +31,7 @@ import math
 import statistics
 import time
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -188,16 +188,16 @@ class SlidingWindowObserver:
             return None
         return self.window_end_ns(self.next_index)
 
-    def process_ready(self, *, live: bool = False) -> list[WindowResult]:
-        """Run every window whose end the data has reached.
+    def process_ready(self, *, live: bool = False) -> Iterator[WindowResult]:
+        """Run every window whose end the data has reached, yielding each result at once.
 
-        With ``live``, when the observer has fallen more than ``max_lag_windows``
-        behind the data it jumps to the newest window (skipped windows counted
-        in ``late``) so estimates stay current.
+        A generator, so a caller publishes each estimate as soon as it is made,
+        even while the data keeps arriving. With ``live``, when the observer has
+        fallen more than ``max_lag_windows`` behind the data it jumps to the
+        newest window (skipped windows counted in ``late``) so estimates stay current.
         """
-        results: list[WindowResult] = []
         if not self._ensure_anchor():
-            return results
+            return
         while True:
             last = self.ring.last_t_ns
             end = self.window_end_ns(self.next_index)
@@ -207,7 +207,7 @@ class SlidingWindowObserver:
                     # Time went far backwards (device clock reset): start again from the data.
                     self._reanchor(last, "time_jump")
                     continue
-                return results
+                return
             if live:
                 behind = (last - end) // self.hop_ns
                 if behind > self.config.max_lag_windows:
@@ -215,8 +215,9 @@ class SlidingWindowObserver:
                     self.next_index += int(behind)
                     continue
             self._resume_index = 0
-            results.append(self._run_window(self.next_index, end))
+            result = self._run_window(self.next_index, end)
             self.next_index = max(self.next_index + 1, self._resume_index)
+            yield result
 
     def _reanchor(self, t_ns: int, reason: str) -> None:
         """Move the schedule so the next window is the first full one after ``t_ns``."""
