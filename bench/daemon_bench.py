@@ -13,8 +13,9 @@ Usage::
 
     python bench/daemon_bench.py [--duration S] [--decimate K ...] [--rate HZ]
 
-The issue asks for a 10-minute real-time replay; ``--duration`` shortens it
-(the default 60 s is said so in the output).
+The issue asks for a 10-minute real-time replay (``--duration 600``); the
+default 60 s is said so in the output. The real-time replay loops over a
+recording of ``--offline-duration`` seconds.
 """
 
 from __future__ import annotations
@@ -57,7 +58,8 @@ def main() -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
 
     tmp = Path(tempfile.mkdtemp(prefix="dcobserver-bench-"))
-    length = max(args.duration, args.offline_duration)
+    # The real-time replay loops over the recording, so a 10-minute run needs no 10-minute file.
+    length = args.offline_duration
     print(f"simulating {length:g} s of the P-12 at {args.rate:g} Hz ...", flush=True)
     rec = simulate(P12, duration_s=length, sample_rate_hz=args.rate, noise=0.002, seed=1)
     path = tmp / "bench.mcap"
@@ -74,7 +76,7 @@ def main() -> int:
             zenoh=ZenohConfig(listen=[f"tcp/127.0.0.1:{_free_port()}"]),
             log=LogConfig(dir="" if args.no_log else str(tmp / f"log-d{k}")),
         )
-        source = ReplaySource(ReplayOptions(path=str(path), speed=1.0, block_s=0.01))
+        source = ReplaySource(ReplayOptions(path=str(path), speed=1.0, block_s=0.01, loop=True))
         elapsed: list[float] = []
         daemon = Daemon(
             config, source, sample_rate_hint_hz=args.rate,
