@@ -28,6 +28,13 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "observer.commands.estimate",
         "estimate field and armature parameters of a recording",
     ),
+    "run": ("observer.commands.run", "run the real-time observer daemon (default: the demo)"),
+    "subscribe": ("observer.commands.subscribe", "print live estimates of any drive (Zenoh)"),
+    "replay": (
+        "observer.commands.replay",
+        "run the observer over a recording, as fast as possible",
+    ),
+    "recover": ("observer.commands.recover", "rewrite a truncated MCAP log as a valid one"),
     "fake-drive": (
         "observer.commands.fake_drive",
         "serve a simulated drive over CAN, serial or Modbus (no hardware needed)",

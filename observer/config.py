@@ -69,11 +69,137 @@ class EstimateConfig:
         return dataclasses.replace(self, **changes)
 
 
+def _positive(x: Any) -> str | None:
+    return None if x is not None and x > 0 else f"must be > 0, got {x!r}"
+
+
+def _above_one(x: Any) -> str | None:
+    return None if x > 1 else f"must be > 1, got {x!r}"
+
+
+def _fraction(x: Any) -> str | None:
+    return None if 0 < x < 1 else f"must be between 0 and 1 (exclusive), got {x!r}"
+
+
+def _key_name(x: Any) -> str | None:
+    if not x or any(c in x for c in "/*$?#\\ "):
+        return f"must be a non-empty name without '/', '*', '$', '?', '#' or spaces, got {x!r}"
+    return None
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    """Where samples come from: ``kind`` names a registered source, ``options`` its settings."""
+
+    kind: str = dataclasses.field(default="replay", metadata={"help": "registered source name"})
+    options: dict[str, Any] = dataclasses.field(
+        default_factory=dict, metadata={"help": "the source's own options, checked by it"}
+    )
+
+
+@dataclass(frozen=True)
+class QualityConfig:
+    """Largest one-sigma relative Cramer-Rao uncertainty for an estimate to be accepted.
+
+    A parameter whose window does not identify it this well is held at its last
+    accepted value (quality ``"held"``) instead of moving.
+    """
+
+    R: float = dataclasses.field(default=0.002, metadata={"check": _positive})
+    L: float = dataclasses.field(default=0.015, metadata={"check": _positive})
+    K: float = dataclasses.field(default=0.002, metadata={"check": _positive})
+
+
+@dataclass(frozen=True)
+class AgreeConfig:
+    """Relative change between windows still taken as agreement, per parameter.
+
+    A larger change is a jump: it widens the search and must be confirmed by
+    ``confirm_windows`` windows in a row before it is reported.
+    """
+
+    R: float = dataclasses.field(default=0.03, metadata={"check": _positive})
+    L: float = dataclasses.field(default=0.10, metadata={"check": _positive})
+    K: float = dataclasses.field(default=0.03, metadata={"check": _positive})
+
+
+@dataclass(frozen=True)
+class ObserverConfig:
+    """The sliding-window observer."""
+
+    drive_id: str = dataclasses.field(
+        default="drive1", metadata={"check": _key_name, "help": "name in the Zenoh key"}
+    )
+    window_s: float = dataclasses.field(default=1.0, metadata={"check": _positive})
+    hop_s: float = dataclasses.field(default=0.1, metadata={"check": _positive})
+    circuits: str = dataclasses.field(
+        default="both", metadata={"choices": ("both", "field", "armature")}
+    )
+    seed: int = 0
+    cold_particles: int = dataclasses.field(default=60, metadata={"min": 2})
+    cold_iterations: int = dataclasses.field(default=40, metadata={"min": 1})
+    warm_particles: int = dataclasses.field(default=24, metadata={"min": 2})
+    warm_iterations: int = dataclasses.field(default=20, metadata={"min": 1})
+    explore_fraction: float = dataclasses.field(default=0.2, metadata={"check": _fraction})
+    initial_range_factor: float = dataclasses.field(default=2.0, metadata={"check": _above_one})
+    min_range_factor: float = dataclasses.field(default=1.05, metadata={"check": _above_one})
+    max_range_factor: float = dataclasses.field(default=4.0, metadata={"check": _above_one})
+    shrink: float = dataclasses.field(default=0.7, metadata={"check": _fraction})
+    widen: float = dataclasses.field(default=3.0, metadata={"check": _above_one})
+    confirm_windows: int = dataclasses.field(default=3, metadata={"min": 1})
+    degrade_ratio: float = dataclasses.field(default=2.0, metadata={"check": _above_one})
+    min_field_taus: float = dataclasses.field(default=3.0, metadata={"check": _positive})
+    max_gap_periods: float = dataclasses.field(default=3.0, metadata={"check": _above_one})
+    decimate: int = dataclasses.field(default=1, metadata={"min": 1})
+    buffer_s: float = dataclasses.field(default=10.0, metadata={"check": _positive})
+    stall_s: float = dataclasses.field(default=1.0, metadata={"check": _positive})
+    health_s: float = dataclasses.field(default=1.0, metadata={"check": _positive})
+    max_lag_windows: int = dataclasses.field(default=20, metadata={"min": 1})
+    quality: QualityConfig = QualityConfig()
+    agree: AgreeConfig = AgreeConfig()
+
+    def __post_init__(self) -> None:
+        if self.hop_s > self.window_s:
+            raise ValueError(f"hop_s ({self.hop_s}) must not exceed window_s ({self.window_s})")
+        if self.buffer_s < 2 * self.window_s:
+            raise ValueError(f"buffer_s ({self.buffer_s}) must be >= 2 * window_s")
+        if not self.min_range_factor < self.max_range_factor:
+            raise ValueError("min_range_factor must be < max_range_factor")
+
+
+@dataclass(frozen=True)
+class ZenohConfig:
+    """Zenoh session; by default a peer listening on loopback only, no multicast scouting."""
+
+    enabled: bool = True
+    mode: str = dataclasses.field(default="peer", metadata={"choices": ("peer", "client")})
+    listen: list[str] = dataclasses.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    connect: list[str] = dataclasses.field(default_factory=list)
+    multicast_scouting: bool = False
+    retry_s: float = dataclasses.field(default=5.0, metadata={"check": _positive})
+
+
+@dataclass(frozen=True)
+class LogConfig:
+    """MCAP log of raw samples, estimates and health; ``dir = ""`` turns it off."""
+
+    dir: str = dataclasses.field(default="", metadata={"path": True})
+    prefix: str = "dcobserver"
+    rotate_mb: float = dataclasses.field(default=256.0, metadata={"check": _positive})
+    rotate_s: float = dataclasses.field(default=3600.0, metadata={"check": _positive})
+    flush_s: float = dataclasses.field(default=1.0, metadata={"check": _positive})
+    block_s: float = dataclasses.field(default=0.1, metadata={"check": _positive})
+
+
 @dataclass(frozen=True)
 class Config:
     """The whole configuration file."""
 
     estimate: EstimateConfig = EstimateConfig()
+    source: SourceConfig = SourceConfig()
+    observer: ObserverConfig = ObserverConfig()
+    zenoh: ZenohConfig = ZenohConfig()
+    log: LogConfig = LogConfig()
 
 
 def load_config(path: str | os.PathLike[str], cls: type[T] = Config) -> T:  # type: ignore[assignment]

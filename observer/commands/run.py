@@ -1,0 +1,123 @@
+"""``dcobserver run``: the real-time observer daemon (what systemd starts)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("dcobserver.run")
+
+#: The demo configuration: a replay of the bundled recording, looping at real time.
+DEMO_CONFIG = Path(__file__).resolve().parents[2] / "config" / "demo.toml"
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--config", metavar="TOML", default=None,
+        help=f"configuration file (default: the demo, {DEMO_CONFIG.name})",
+    )  # fmt: skip
+    parser.add_argument("--quiet-estimates", action="store_true", help="do not log every estimate")
+
+
+def format_estimate(e: dict[str, Any]) -> str:
+    """One log line per estimate: values with their quality (ok/held/unconfirmed/none)."""
+    parts = [f"window {e.get('index')} t={e['t_ns'] / 1e9:.2f}s"]
+    units = {"R": "ohm", "L": "H", "K": "H"}
+    for circuit in ("field", "armature"):
+        c = e.get(circuit)
+        if not c:
+            continue
+        items = []
+        for p in ("R", "L", "K"):
+            if p in c:
+                v = c[p]
+                q = c.get("quality", {}).get(p, "?")
+                text = "-" if v is None else f"{v:.5g}"
+                items.append(f"{p}={text} {units[p]} ({q})")
+        parts.append(f"{circuit}: " + ", ".join(items))
+    parts.append(f"{e.get('elapsed_ms', 0):.0f} ms")
+    return " | ".join(parts)
+
+
+def _load(path: str) -> tuple[Any, Any]:
+    from observer.config import load_config
+    from observer.daemon import make_source
+
+    config: Any = load_config(path)
+    source = make_source(config, path, Path(path).resolve().parent)
+    return config, source
+
+
+def main(args: argparse.Namespace) -> int:
+    from observer import sdnotify
+    from observer.cli import UserError
+    from observer.daemon import Daemon
+    from observer.observer import warm_up_kernels
+
+    path = args.config or str(DEMO_CONFIG)
+    if args.config is None and not DEMO_CONFIG.is_file():
+        raise UserError(f"no --config given and the demo config {DEMO_CONFIG} is missing")
+    try:
+        config, source = _load(path)
+    except Exception as exc:
+        from drivers import SourceError
+
+        if isinstance(exc, SourceError):
+            raise UserError(f"{path}: {exc}") from None
+        raise
+    sdnotify.status("compiling numba kernels")
+    seconds = warm_up_kernels()
+    log.info("numba kernels ready in %.1f s", seconds)
+
+    wake = threading.Event()
+    requests: list[str] = []
+
+    def on_signal(signum: int, _frame: object) -> None:
+        requests.append("reload" if signum == signal.SIGHUP else "stop")
+        wake.set()
+
+    for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        signal.signal(signum, on_signal)
+
+    def on_estimate(e: dict[str, Any]) -> None:
+        if not args.quiet_estimates:
+            log.info("%s", format_estimate(e))
+
+    def start(cfg: Any, src: Any) -> Daemon:
+        d = Daemon(cfg, src, on_estimate=on_estimate)
+        d.start()
+        return d
+
+    daemon = start(config, source)
+    sdnotify.ready(f"observing drive {config.observer.drive_id}")
+    log.info("dcobserver running: drive %s, config %s", config.observer.drive_id, path)
+    while True:
+        wake.wait(0.5)
+        wake.clear()
+        while requests:
+            request = requests.pop(0)
+            if request == "stop":
+                log.info("stopping (signal)")
+                sdnotify.stopping()
+                daemon.stop()
+                return 0
+            sdnotify.reloading()
+            try:
+                new_config, new_source = _load(path)
+            except Exception as exc:
+                log.error("reload failed, keeping the running configuration: %s", exc)
+                sdnotify.ready("reload failed; running the previous configuration")
+                continue
+            log.info("reloading %s", path)
+            daemon.stop()
+            daemon = start(new_config, new_source)
+            sdnotify.ready(f"reloaded; observing drive {new_config.observer.drive_id}")
+        if daemon.finished.is_set():
+            log.info("source ended; stopping")
+            sdnotify.stopping()
+            daemon.stop()
+            return 0

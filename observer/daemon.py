@@ -1,0 +1,285 @@
+"""The daemon's pipeline: source -> ring buffer -> sliding-window observer -> Zenoh and MCAP.
+
+Threads:
+
+* **acquisition** reads the source and writes the ring buffer, nothing else,
+  so a slow estimate never stalls acquisition (numba kernels release the GIL);
+* **observer** waits for the data to reach the next window's end, estimates,
+  publishes, queues the raw samples and results for the log, emits health and
+  pings the systemd watchdog (so a hung estimator gets the service restarted);
+* **mcap-log** (in :class:`observer.mcaplog.McapLog`) writes the file;
+* zenoh's own threads.
+
+Start order: log, Zenoh, observer, acquisition; :meth:`Daemon.stop` stops them
+in reverse (acquisition, observer, Zenoh undeclared, log finished).
+"""
+
+from __future__ import annotations
+
+import logging
+import statistics
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from drivers import Source, SourceClosed, source_class
+from observer import sdnotify
+from observer.config import Config
+from observer.mcaplog import McapLog, to_json
+from observer.observer import SlidingWindowObserver, WindowResult
+from observer.ringbuffer import RingBuffer
+
+log = logging.getLogger(__name__)
+
+
+def make_source(config: Config, config_path: str, base_dir: Path) -> Source:
+    """The configured source (``[source] kind`` + ``[source.options]``)."""
+    cls = source_class(config.source.kind)
+    return cls.from_config(config.source.options, source=config_path, base_dir=base_dir)
+
+
+class Daemon:
+    """One running pipeline.
+
+    Parameters
+    ----------
+    config : Config
+    source : Source
+    on_estimate : callable, optional
+        Called in the observer thread with every estimate dict (keep it quick).
+    sample_rate_hint_hz : float
+        Sizes the ring buffer (``buffer_s`` seconds at this rate).
+    """
+
+    def __init__(
+        self,
+        config: Config,
+        source: Source,
+        *,
+        on_estimate: Callable[[dict[str, Any]], None] | None = None,
+        sample_rate_hint_hz: float = 20_000.0,
+    ) -> None:
+        from observer.zenohpub import ZenohPublisher
+
+        self.config = config
+        self.source = source
+        self.drive_id = config.observer.drive_id
+        self.ring = RingBuffer(max(1024, int(config.observer.buffer_s * sample_rate_hint_hz)))
+        self.observer = SlidingWindowObserver(self.ring, config.observer)
+        self.zenoh = ZenohPublisher(config.zenoh, self.drive_id)
+        self.mcap = McapLog(config.log, self.drive_id) if config.log.dir else None
+        self.on_estimate = on_estimate
+        self.latencies_ms: deque[float] = deque(maxlen=2000)
+        self.source_ended = threading.Event()
+        self.finished = threading.Event()
+        self._stop = threading.Event()
+        self._source_errors = 0
+        self._last_source_error = ""
+        self._started = time.monotonic()
+        self._last_sample_wall = time.monotonic()
+        self._last_written = 0
+        self._prev_counts: Counter[str] = Counter()
+        self._acq = threading.Thread(target=self._acquire, name="acquisition", daemon=True)
+        self._obs = threading.Thread(target=self._observe, name="observer", daemon=True)
+        self._watchdog_s = sdnotify.watchdog_interval_s()
+        self.observer_error = ""
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> None:
+        if self.mcap is not None:
+            self.mcap.start()
+        self.zenoh.start()
+        self._obs.start()
+        self._acq.start()
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop in reverse order: source, observer, Zenoh, log (the MCAP file is finished)."""
+        self._stop.set()
+        self.ring.notify()
+        self._acq.join(timeout)
+        try:
+            self.source.close()
+        except Exception as exc:
+            log.warning("closing the source: %s", exc)
+        self._obs.join(timeout)
+        self.zenoh.close()
+        if self.mcap is not None:
+            self.mcap.close()
+
+    # ------------------------------------------------------------------ acquisition
+
+    def _acquire(self) -> None:
+        backoff = 0.1
+        while not self._stop.is_set():
+            try:
+                block = self.source.read(timeout=0.2)
+            except SourceClosed:
+                if not self._stop.is_set():
+                    log.info("source ended")
+                self.source_ended.set()
+                self.ring.notify()
+                return
+            except Exception as exc:  # a pump thread never dies silently
+                self._source_errors += 1
+                self._last_source_error = str(exc)
+                log.error("source error (retrying in %.1f s): %s", backoff, exc)
+                self._stop.wait(backoff)
+                backoff = min(backoff * 2, 5.0)
+                continue
+            backoff = 0.1
+            if block is not None and len(block):
+                self.ring.write(block)
+
+    # ------------------------------------------------------------------ observer
+
+    def _observe(self) -> None:
+        hop = self.config.observer.hop_s
+        next_health = time.monotonic() + self.config.observer.health_s
+        next_ping = 0.0
+        while not self._stop.is_set():
+            try:
+                due = self.observer.next_due_ns()
+                if due is None:
+                    self.ring.wait_for(1, timeout=min(hop, 0.2))
+                else:
+                    self.ring.wait_for_time(due, timeout=min(hop, 0.2))
+                self._log_new_samples()
+                for result in self.observer.process_ready(live=True):
+                    self._emit(result)
+                    self._log_new_samples()
+            except Exception as exc:  # never die silently: count, log, go on
+                self.observer.counts["observer_errors"] += 1
+                self.observer_error = f"{type(exc).__name__}: {exc}"
+                log.exception("observer loop error")
+            now = time.monotonic()
+            if self._watchdog_s is not None and now >= next_ping:
+                sdnotify.watchdog()
+                next_ping = now + self._watchdog_s
+            if now >= next_health:
+                self.emit_health()
+                next_health = now + self.config.observer.health_s
+            if self.source_ended.is_set() and not self._more_ready():
+                self._log_new_samples()
+                self.emit_health(state="source_ended")
+                self.finished.set()
+                return
+        self._log_new_samples()
+
+    def _more_ready(self) -> bool:
+        due = self.observer.next_due_ns()
+        last = self.ring.last_t_ns
+        return due is not None and last is not None and last >= due
+
+    def _log_new_samples(self) -> None:
+        while True:
+            window = self.ring.read_new(max_samples=self.ring.capacity // 2)
+            if window is None:
+                return
+            self._last_sample_wall = time.monotonic()
+            if self.mcap is not None:
+                self.mcap.submit_samples(window.t_ns, window.signals)
+
+    def _emit(self, result: WindowResult) -> None:
+        if result.estimate is None:
+            return
+        estimate = {"drive_id": self.drive_id, **result.estimate}
+        payload = to_json(estimate)
+        self.zenoh.publish("estimate", payload)
+        self.latencies_ms.append((time.monotonic_ns() - result.arrival_ns) / 1e6)
+        if self.mcap is not None:
+            self.mcap.submit_json("/estimate", result.t1_ns, estimate)
+        if self.on_estimate is not None:
+            self.on_estimate(estimate)
+
+    # ------------------------------------------------------------------ health
+
+    def health(self, state: str = "running") -> dict[str, Any]:
+        ring = self.ring.stats()
+        obs = self.observer.health()
+        counts = Counter(self.observer.counts)
+        recent = {k: v - self._prev_counts.get(k, 0) for k, v in counts.items()}
+        recent = {k: v for k, v in recent.items() if v}
+        self._prev_counts = counts
+        flags: list[str] = []
+        stalled = time.monotonic() - self._last_sample_wall
+        if self.source_ended.is_set():
+            flags.append("source_ended")
+        elif stalled > self.config.observer.stall_s:
+            flags.append("source_stalled")
+        flags += sorted({f"window_{k}" for k in recent if k.startswith("skipped:")})
+        if recent.get("late"):
+            flags.append("observer_late")
+        if ring["overruns"]:
+            flags.append("ring_overrun")
+        source_health = self.source.health()
+        if self._source_errors or source_health.get("errors"):
+            flags.append("source_errors")
+        zenoh = self.zenoh.health()
+        if zenoh["state"] == "unreachable":
+            flags.append("zenoh_unreachable")
+        log_health = self.mcap.health() if self.mcap is not None else {"state": "off"}
+        if log_health.get("state") == "error":
+            flags.append("log_error")
+        latencies = list(self.latencies_ms)
+        lat = {}
+        if latencies:
+            q = statistics.quantiles(latencies, n=100) if len(latencies) > 1 else latencies * 99
+            lat = {"p50": q[49], "p99": q[98], "n": len(latencies)}
+        return {
+            "drive_id": self.drive_id,
+            "wall_time_ns": time.time_ns(),
+            "uptime_s": time.monotonic() - self._started,
+            "state": state,
+            "flags": flags,
+            "source": {
+                **source_health,
+                "thread_errors": self._source_errors,
+                "last_thread_error": self._last_source_error,
+                "seconds_since_sample": stalled,
+            },
+            "ring": ring,
+            "observer": {**obs, "windows_recent": recent, "last_error": self.observer_error},
+            "zenoh": zenoh,
+            "log": log_health,
+            "latency_ms": lat,
+        }
+
+    def emit_health(self, state: str = "running") -> dict[str, Any]:
+        health = self.health(state)
+        self.zenoh.publish("health", to_json(health))
+        if self.mcap is not None:
+            self.mcap.submit_json("/health", time.time_ns(), health)
+        if health["flags"]:
+            log.info("health: %s", ", ".join(health["flags"]))
+        return health
+
+
+def run_offline(
+    config: Config,
+    source: Source,
+    *,
+    on_result: Callable[[WindowResult], None] | None = None,
+    progress: Callable[[int], None] | None = None,
+    sample_rate_hint_hz: float = 20_000.0,
+) -> SlidingWindowObserver:
+    """Run the observer over a whole source in this thread (``dcobserver replay``).
+
+    Same windows, seeds and warm starts as the live daemon, so the same
+    estimates (when the live daemon kept up). ``progress`` gets the samples
+    of each block read.
+    """
+    ring = RingBuffer(max(1024, int(config.observer.buffer_s * sample_rate_hint_hz)))
+    observer = SlidingWindowObserver(ring, config.observer)
+    with source:
+        for block in source:
+            ring.write(block)
+            for result in observer.process_ready(live=False):
+                if on_result is not None:
+                    on_result(result)
+            if progress is not None:
+                progress(len(block))
+    return observer

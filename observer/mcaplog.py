@@ -1,0 +1,454 @@
+"""The daemon's MCAP log: raw samples, estimates and health, with rotation and crash safety.
+
+Raw samples are written exactly as :func:`observer.recording.write_mcap` writes
+recordings (topic :data:`~observer.recording.SAMPLES_TOPIC`, schema
+:data:`~observer.recording.SAMPLE_BLOCK_SCHEMA`), so ``dcobserver estimate``,
+``dcobserver replay`` and the replay source read daemon logs. Estimates and
+health go on ``/estimate`` and ``/health`` as JSON with a JSON schema each
+(Foxglove plots them).
+
+Crash safety: the chunk in progress is closed and flushed to the file every
+``flush_s`` seconds, so a crash or power loss loses at most that much; the
+file left behind is readable up to the last flushed chunk by streaming
+readers, and :func:`recover` rewrites it into a valid indexed file.
+
+Write errors (disk full, file too large, directory gone) never propagate:
+they are counted, reported in :meth:`McapLog.health`, and a new file is tried
+after ``retry_s``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import logging
+import math
+import os
+import queue
+import threading
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from observer.config import LogConfig
+from observer.recording import (
+    SAMPLE_BLOCK_SCHEMA,
+    SAMPLES_SCHEMA_NAME,
+    SAMPLES_TOPIC,
+    sample_block_message,
+)
+
+log = logging.getLogger(__name__)
+
+ESTIMATE_TOPIC = "/estimate"
+HEALTH_TOPIC = "/health"
+
+_PARAM = {"type": ["number", "null"]}
+_CIRCUIT_SCHEMA: dict[str, Any] = {
+    "type": "object",
+    "properties": {
+        "R": {**_PARAM, "description": "Resistance (ohm)."},
+        "L": {**_PARAM, "description": "Inductance (H)."},
+        "K": {**_PARAM, "description": "EMF constant (V*s/(rad*A)); armature only."},
+        "rms": {**_PARAM, "description": "RMS current error of the window's fit (A)."},
+        "quality": {
+            "type": "object",
+            "description": "Per parameter: ok, held (window does not identify it), "
+            "unconfirmed (a jump not yet confirmed), none (never identified yet).",
+            "additionalProperties": {"enum": ["ok", "held", "unconfirmed", "none"]},
+        },
+        "rel_std": {
+            "type": "object",
+            "description": "One-sigma relative Cramer-Rao uncertainty in this window.",
+            "additionalProperties": _PARAM,
+        },
+    },
+}
+ESTIMATE_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "dcobserver.Estimate",
+    "description": "Winding parameters estimated over one sliding window.",
+    "type": "object",
+    "properties": {
+        "drive_id": {"type": "string"},
+        "index": {"type": "integer", "description": "Window number since the first sample."},
+        "t_ns": {"type": "integer", "description": "Window end, sample time (ns)."},
+        "window": {
+            "type": "array",
+            "items": {"type": "integer"},
+            "minItems": 2,
+            "maxItems": 2,
+            "description": "[t0, t1] (ns): samples with t0 < t <= t1.",
+        },
+        "n_samples": {"type": "integer"},
+        "elapsed_ms": {"type": "number", "description": "Estimation time (ms)."},
+        "field": _CIRCUIT_SCHEMA,
+        "armature": _CIRCUIT_SCHEMA,
+        "flags": {"type": "array", "items": {"type": "string"}},
+    },
+    "required": ["t_ns", "window"],
+}
+HEALTH_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "dcobserver.Health",
+    "description": "Counters of the daemon: source, ring buffer, windows, outputs.",
+    "type": "object",
+    "properties": {
+        "drive_id": {"type": "string"},
+        "wall_time_ns": {"type": "integer"},
+        "uptime_s": {"type": "number"},
+        "state": {"type": "string"},
+        "flags": {"type": "array", "items": {"type": "string"}},
+        "source": {"type": "object"},
+        "ring": {"type": "object"},
+        "observer": {"type": "object"},
+        "zenoh": {"type": "object"},
+        "log": {"type": "object"},
+        "latency_ms": {"type": "object"},
+    },
+    "required": ["wall_time_ns", "state"],
+}
+
+
+_FILE_NUMBERS = itertools.count(1)  # per process, across McapLog instances (reloads)
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, Mapping):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return _json_safe(float(value))
+    return value
+
+
+def to_json(obj: Any) -> bytes:
+    """Compact JSON with non-finite floats as null."""
+    return json.dumps(_json_safe(obj), separators=(",", ":"), allow_nan=False).encode()
+
+
+class _File:
+    """One open MCAP file with its three channels."""
+
+    def __init__(self, path: Path, chunk_size: int) -> None:
+        self.path = path
+        # "xb": never overwrite a log, even one of the same second and process.
+        self.stream: IO[bytes] = open(path, "xb")  # noqa: SIM115 - closed in finish()
+        try:
+            self.writer = Writer(
+                self.stream, chunk_size=chunk_size, compression=CompressionType.ZSTD
+            )
+            self.writer.start(profile="", library="dcobserver")
+            ids = {}
+            for topic, name, schema in (
+                (SAMPLES_TOPIC, SAMPLES_SCHEMA_NAME, SAMPLE_BLOCK_SCHEMA),
+                (ESTIMATE_TOPIC, ESTIMATE_SCHEMA["title"], ESTIMATE_SCHEMA),
+                (HEALTH_TOPIC, HEALTH_SCHEMA["title"], HEALTH_SCHEMA),
+            ):
+                sid = self.writer.register_schema(name, "jsonschema", json.dumps(schema).encode())
+                ids[topic] = self.writer.register_channel(topic, "json", sid)
+            self.writer.flush()
+            self.stream.flush()
+        except BaseException:
+            self.stream.close()
+            raise
+        self.channels = ids
+        self.opened = time.monotonic()
+
+    def add(self, topic: str, log_time_ns: int, data: bytes) -> None:
+        t = max(0, int(log_time_ns))
+        self.writer.add_message(self.channels[topic], t, data, t)
+
+    def flush(self) -> None:
+        self.writer.flush()
+        self.stream.flush()
+        os.fsync(self.stream.fileno())
+
+    @property
+    def size(self) -> int:
+        return self.stream.tell()
+
+    def finish(self) -> None:
+        try:
+            self.writer.finish()
+            self.stream.flush()
+            os.fsync(self.stream.fileno())
+        finally:
+            self.stream.close()
+
+    def abandon(self) -> None:
+        try:
+            self.stream.close()
+        except OSError:
+            pass
+
+
+class McapLog:
+    """Writes the daemon's log in its own thread; producers never block.
+
+    Parameters
+    ----------
+    config : LogConfig
+        ``dir`` must be set.
+    drive_id : str
+        Part of the file names.
+    queue_size : int
+        Items waiting; beyond it items are dropped and counted.
+    retry_s : float
+        Pause before opening a new file after a write error.
+    """
+
+    def __init__(
+        self, config: LogConfig, drive_id: str, *, queue_size: int = 2000, retry_s: float = 5.0
+    ) -> None:
+        self.config = config
+        self.drive_id = drive_id
+        self.dir = Path(config.dir)
+        self.retry_s = retry_s
+        self._queue: queue.Queue[tuple[str, int, Any] | None] = queue.Queue(queue_size)
+        self._file: _File | None = None
+        self._lock = threading.Lock()
+        self._health: dict[str, Any] = {
+            "file": "",
+            "files": 0,
+            "messages": 0,
+            "bytes": 0,
+            "errors": 0,
+            "dropped": 0,
+            "last_error": "",
+            "state": "starting",
+        }
+        self._next_try = 0.0
+        self._last_flush = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="mcap-log", daemon=True)
+        self._seq = 0
+
+    # ---------------------------------------------------------------- producers
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def submit_samples(self, t_ns: np.ndarray, signals: Mapping[str, np.ndarray]) -> None:
+        """Queue raw samples (split into ``block_s`` messages when written)."""
+        self._put(("samples", int(t_ns[0]) if len(t_ns) else 0, (t_ns, dict(signals))))
+
+    def submit_json(self, topic: str, log_time_ns: int, obj: Any) -> None:
+        """Queue a JSON message on ``/estimate`` or ``/health``."""
+        self._put((topic, log_time_ns, obj))
+
+    def _put(self, item: tuple[str, int, Any]) -> None:
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            with self._lock:
+                self._health["dropped"] += 1
+
+    def health(self) -> dict[str, Any]:
+        with self._lock:
+            return dict(self._health)
+
+    def close(self, timeout: float = 10.0) -> None:
+        """Write what is queued, finish the file (valid, indexed) and stop the thread."""
+        if self._thread.is_alive():
+            self._queue.put(None)
+            self._thread.join(timeout)
+        elif self._file is not None:
+            self._finish()
+
+    # ---------------------------------------------------------------- writer thread
+
+    def _set(self, **changes: Any) -> None:
+        with self._lock:
+            self._health.update(changes)
+
+    def _error(self, exc: BaseException, doing: str) -> None:
+        with self._lock:
+            self._health["errors"] += 1
+            self._health["last_error"] = f"{doing}: {exc}"
+            self._health["state"] = "error"
+        log.error("MCAP log: %s: %s (estimation goes on; retry in %g s)", doing, exc, self.retry_s)
+        if self._file is not None:
+            self._file.abandon()
+            self._file = None
+        self._next_try = time.monotonic() + self.retry_s
+
+    def _open(self) -> bool:
+        if self._file is not None:
+            return True
+        if time.monotonic() < self._next_try:
+            return False
+        self._seq = next(_FILE_NUMBERS)
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
+        name = f"{self.config.prefix}-{self.drive_id}-{stamp}-{os.getpid()}-{self._seq:04d}.mcap"
+        try:
+            self.dir.mkdir(parents=True, exist_ok=True)
+            self._file = _File(self.dir / name, chunk_size=4 * 1024 * 1024)
+        except OSError as exc:
+            self._error(exc, f"cannot open {self.dir / name}")
+            return False
+        with self._lock:
+            self._health["file"] = str(self._file.path)
+            self._health["files"] += 1
+            self._health["state"] = "ok"
+        log.info("MCAP log: writing %s", self._file.path)
+        return True
+
+    def _finish(self) -> None:
+        if self._file is None:
+            return
+        try:
+            self._file.finish()
+        except OSError as exc:
+            self._error(exc, f"cannot finish {self._file.path}")
+        self._file = None
+
+    def _write(self, kind: str, log_time: int, payload: Any) -> None:
+        if not self._open():
+            with self._lock:
+                self._health["dropped"] += 1
+            return
+        assert self._file is not None
+        try:
+            if kind == "samples":
+                t_ns, signals = payload
+                present = {c: v for c, v in signals.items() if not np.isnan(v[0])}
+                if not present or not len(t_ns):
+                    return
+                step = self._block_samples(t_ns)
+                for start in range(0, len(t_ns), step):
+                    sl = slice(start, start + step)
+                    data = sample_block_message(t_ns[sl], {c: v[sl] for c, v in present.items()})
+                    self._file.add(SAMPLES_TOPIC, int(t_ns[start]), data)
+                    self._count()
+            else:
+                self._file.add(kind, log_time, to_json(payload))
+                self._count()
+        except (OSError, ValueError) as exc:
+            self._error(exc, f"cannot write {self._file.path}")
+
+    def _block_samples(self, t_ns: np.ndarray) -> int:
+        if len(t_ns) < 2:
+            return 1
+        period = float(np.median(np.diff(t_ns)))
+        return max(1, int(round(self.config.block_s * 1e9 / max(period, 1.0))))
+
+    def _count(self) -> None:
+        with self._lock:
+            self._health["messages"] += 1
+
+    def _maintain(self) -> None:
+        """Flush every ``flush_s``; rotate by size or age."""
+        if self._file is None:
+            return
+        now = time.monotonic()
+        try:
+            if now - self._last_flush >= self.config.flush_s:
+                self._file.flush()
+                self._last_flush = now
+                self._set(bytes=self._file.size)
+            if (
+                self._file.size >= self.config.rotate_mb * 1e6
+                or now - self._file.opened >= self.config.rotate_s
+            ):
+                log.info("MCAP log: rotating %s", self._file.path)
+                self._finish()
+        except OSError as exc:
+            self._error(exc, f"cannot flush {self._file.path}")
+
+    def _run(self) -> None:
+        while True:
+            try:
+                item = self._queue.get(timeout=min(0.2, self.config.flush_s))
+            except queue.Empty:
+                item = ()  # type: ignore[assignment]
+            try:
+                if item is None:
+                    self._finish()
+                    self._set(state="closed")
+                    return
+                if item:
+                    self._write(*item)
+                self._maintain()
+            except Exception as exc:  # the log thread must never die silently
+                self._error(exc, "unexpected error")
+
+
+def recover(source: str | os.PathLike[str], destination: str | os.PathLike[str]) -> int:
+    """Rewrite a truncated or unfinished MCAP file as a valid, indexed one.
+
+    Every schema, channel, message and metadata record before the cut is kept.
+
+    Returns
+    -------
+    int
+        The number of messages written.
+
+    Raises
+    ------
+    observer.recording.RecordingError
+        If ``source`` is not an MCAP file.
+    """
+    from mcap.records import Channel, Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
+
+    from observer.recording import RecordingError
+
+    src = os.fspath(source)
+    try:
+        size = os.path.getsize(src)
+        stream = open(src, "rb")  # noqa: SIM115
+    except OSError as exc:
+        raise RecordingError(f"cannot read file: {exc.strerror or exc}", path=src) from None
+    with stream:
+        if stream.read(8) != b"\x89MCAP0\r\n":
+            raise RecordingError("not an MCAP file (no MCAP magic bytes at the start)", path=src)
+        stream.seek(0)
+        out = open(destination, "wb")  # noqa: SIM115
+        with out:
+            writer = Writer(out, compression=CompressionType.ZSTD)
+            writer.start(library="dcobserver recover")
+            schemas: dict[int, int] = {}
+            channels: dict[int, int] = {}
+            n = 0
+            records = StreamReader(stream, validate_crcs=True, record_size_limit=size).records
+            while True:
+                try:
+                    record = next(records)
+                except StopIteration:
+                    break
+                except Exception as exc:
+                    log.warning("%s: stops at the cut (%s)", src, exc)
+                    break
+                if isinstance(record, Schema) and record.id not in schemas:
+                    schemas[record.id] = writer.register_schema(
+                        record.name, record.encoding, record.data
+                    )
+                elif isinstance(record, Channel) and record.id not in channels:
+                    channels[record.id] = writer.register_channel(
+                        record.topic,
+                        record.message_encoding,
+                        schemas.get(record.schema_id, 0),
+                        dict(record.metadata),
+                    )
+                elif isinstance(record, Message) and record.channel_id in channels:
+                    writer.add_message(
+                        channels[record.channel_id],
+                        record.log_time,
+                        record.data,
+                        record.publish_time,
+                        record.sequence,
+                    )
+                    n += 1
+                elif isinstance(record, Metadata):
+                    writer.add_metadata(record.name, dict(record.metadata))
+            writer.finish()
+    return n

@@ -1,0 +1,453 @@
+"""The sliding-window observer: re-estimates the windings every hop from the ring buffer.
+
+Windows are laid on the *data* time axis, not the wall clock: window ``k``
+holds the samples with ``end_k - window < t <= end_k``, ``end_k = anchor +
+window + k * hop`` where ``anchor`` is the first sample's time. Each window's
+swarm draws from a generator seeded with ``(seed, k, circuit)``, and the warm
+start depends only on earlier windows, so a replay of a log gives the same
+numbers as the live daemon did (as long as the live daemon kept up: a window
+it had to skip because it fell behind is counted in ``late``).
+
+Warm start: each circuit's swarm starts from the last accepted ``(R, L)``, most
+particles inside ``around(R, L, factor)`` of the full data-derived range and a
+fraction ``explore_fraction`` spread over the whole range, so a real change is
+caught. ``factor`` shrinks while successive estimates agree and widens (and the
+next window runs the cold, larger swarm) when the fit degrades or the
+parameters jump.
+
+Per-parameter quality: a parameter whose relative Cramer-Rao uncertainty in
+this window exceeds its limit is not identified by the window (e.g. ``Lf``
+under a constant field voltage): it is *held* at its last accepted value and
+reported with ``quality = "held"`` and the window's ``rel_std``.
+
+Windows with a gap, a time jump, a stuck channel or too few samples are
+skipped and counted by reason; nothing here raises into the caller's loop.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import statistics
+import time
+from collections import Counter, deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from observer.config import ObserverConfig
+from observer.estimate import (
+    CircuitEstimate,
+    EstimationError,
+    SearchRange,
+    armature_search_range,
+    estimate_armature,
+    estimate_field,
+    field_search_range,
+)
+from observer.ringbuffer import RingBuffer, Window
+
+log = logging.getLogger(__name__)
+
+_NS = 1_000_000_000
+CIRCUIT_PARAMS = {"field": ("R", "L"), "armature": ("R", "L", "K")}
+CIRCUIT_CHANNELS = {"field": ("vf", "if"), "armature": ("va", "ia", "if", "omega")}
+_CIRCUIT_INDEX = {"field": 0, "armature": 1}
+
+
+@dataclass
+class _Tracker:
+    """Warm-start state of one circuit."""
+
+    accepted: dict[str, float] = field(default_factory=dict)
+    factor: float | None = None  # None: next window runs cold over the full range
+    rms_history: deque[float] = field(default_factory=lambda: deque(maxlen=20))
+    # Values of a parameter that jumped from its accepted value, awaiting confirmation.
+    candidates: dict[str, deque[float]] = field(default_factory=dict)
+    # Recent accepted values per parameter: jumps are measured from their median,
+    # so a slow slide of small biased steps is caught too.
+    recent: dict[str, deque[float]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class WindowResult:
+    """What one window produced: an estimate (JSON-ready dict) or a skip reason."""
+
+    index: int
+    t0_ns: int
+    t1_ns: int
+    estimate: dict[str, Any] | None
+    skip_reason: str = ""
+    arrival_ns: int = 0  # host monotonic time the window's last sample reached the ring
+
+
+def check_window(window: Window, max_gap_periods: float) -> tuple[str, float]:
+    """``("", period_s)`` if the window is usable, else ``(reason, period_s)``.
+
+    Reasons: ``"too_few_samples"``, ``"time_jump"`` (time not increasing),
+    ``"gap"`` (a sample interval above ``max_gap_periods`` median periods),
+    ``"stuck:<channel>"`` (a channel repeating one value for more than a tenth
+    of the window, at least 20 samples: a frozen sensor or a stale register).
+    """
+    n = len(window)
+    if n < 20:
+        return "too_few_samples", math.nan
+    d = np.diff(window.t_ns)
+    if np.any(d <= 0):
+        return "time_jump", math.nan
+    period = float(np.median(d))
+    if float(d.max()) > max_gap_periods * period:
+        return "gap", period / _NS
+    for name, values in window.signals.items():
+        if np.isnan(values[0]):
+            continue  # a channel the source does not provide
+        if np.any(np.isnan(values)):
+            return f"missing:{name}", period / _NS
+        if _longest_repeat(values) > max(20, n // 10):
+            return f"stuck:{name}", period / _NS
+    return "", period / _NS
+
+
+def _longest_repeat(values: np.ndarray) -> int:
+    """Length of the longest run of identical consecutive samples (a frozen sensor)."""
+    same = np.concatenate(([False], values[1:] == values[:-1], [False]))
+    edges = np.flatnonzero(same[1:] != same[:-1])
+    if edges.size == 0:
+        return 1
+    return int((edges[1::2] - edges[::2]).max()) + 1
+
+
+def _decimated(values: np.ndarray, k: int, *, sample: bool) -> np.ndarray:
+    """Every ``k``-th sample (``sample``) or the mean of each ``k`` samples."""
+    if k == 1:
+        return values
+    n = (values.size // k) * k
+    if sample:
+        return values[:n:k].copy()
+    return values[:n].reshape(-1, k).mean(axis=1)
+
+
+def _finite_or_none(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+class SlidingWindowObserver:
+    """Estimates field and armature over sliding windows of a :class:`RingBuffer`.
+
+    Parameters
+    ----------
+    ring : RingBuffer
+    config : ObserverConfig
+    clock : callable, optional
+        Monotonic nanoseconds (for the elapsed time of each estimate).
+    """
+
+    def __init__(
+        self,
+        ring: RingBuffer,
+        config: ObserverConfig,
+        *,
+        clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        self.ring = ring
+        self.config = config
+        self._clock = clock
+        self.window_ns = int(round(config.window_s * _NS))
+        self.hop_ns = int(round(config.hop_s * _NS))
+        self.circuits = ("field", "armature") if config.circuits == "both" else (config.circuits,)
+        self._trackers = {c: _Tracker() for c in self.circuits}
+        self._anchor_ns: int | None = None
+        self.next_index = 0
+        self.counts: Counter[str] = Counter()
+        self.last_skip_reason = ""
+        self.warnings: set[str] = set()
+        self.last_estimate: dict[str, Any] | None = None
+        self._resume_index = 0
+
+    # ------------------------------------------------------------------ schedule
+
+    def window_end_ns(self, index: int) -> int | None:
+        """End time (ns) of window ``index``, or None before the first sample."""
+        if self._anchor_ns is None:
+            return None
+        return self._anchor_ns + self.window_ns + index * self.hop_ns
+
+    def _ensure_anchor(self) -> bool:
+        if self._anchor_ns is None:
+            first = self.ring.latest(self.ring.capacity)
+            if first is None:
+                return False
+            self._anchor_ns = int(first.t_ns[0])
+        return True
+
+    def next_due_ns(self) -> int | None:
+        """Data time the ring must reach before the next window can run."""
+        if not self._ensure_anchor():
+            return None
+        return self.window_end_ns(self.next_index)
+
+    def process_ready(self, *, live: bool = False) -> Iterator[WindowResult]:
+        """Run every window whose end the data has reached, yielding each result at once.
+
+        A generator, so a caller publishes each estimate as soon as it is made,
+        even while the data keeps arriving. With ``live``, when the observer has
+        fallen more than ``max_lag_windows`` behind the data it jumps to the
+        newest window (skipped windows counted in ``late``) so estimates stay current.
+        """
+        if not self._ensure_anchor():
+            return
+        while True:
+            last = self.ring.last_t_ns
+            end = self.window_end_ns(self.next_index)
+            assert end is not None and self._anchor_ns is not None
+            if last is None or last < end:
+                if last is not None and end - last > self.window_ns + 10 * _NS:
+                    # Time went far backwards (device clock reset): start again from the data.
+                    self._reanchor(last, "time_jump")
+                    continue
+                return
+            if live:
+                behind = (last - end) // self.hop_ns
+                if behind > self.config.max_lag_windows:
+                    self.counts["late"] += int(behind)
+                    self.next_index += int(behind)
+                    continue
+            self._resume_index = 0
+            result = self._run_window(self.next_index, end)
+            self.next_index = max(self.next_index + 1, self._resume_index)
+            yield result
+
+    def _reanchor(self, t_ns: int, reason: str) -> None:
+        """Move the schedule so the next window is the first full one after ``t_ns``."""
+        assert self._anchor_ns is not None
+        self.counts[f"skipped:{reason}"] += 1
+        self.last_skip_reason = reason
+        k = math.ceil((t_ns - self._anchor_ns) / self.hop_ns)
+        if k < self.next_index:
+            self._anchor_ns = t_ns - self.next_index * self.hop_ns
+        else:
+            self.next_index = k
+
+    # ------------------------------------------------------------------ one window
+
+    def _run_window(self, index: int, end_ns: int) -> WindowResult:
+        t0 = end_ns - self.window_ns
+        window = self.ring.between(t0, end_ns)
+        if window is None or len(window) < 20:
+            # (Almost) nothing in this window: if data resumes later, move the
+            # schedule to the first window starting after it, not hop by hop.
+            last = self.ring.last_t_ns
+            after = None if last is None else self.ring.between(end_ns, last)
+            if after is not None and len(after) and self._anchor_ns is not None:
+                first_after = int(after.t_ns[0])
+                self._resume_index = math.ceil((first_after - self._anchor_ns) / self.hop_ns)
+            return self._skip(index, t0, end_ns, "gap" if window is not None else "no_data")
+        reason, period_s = check_window(window, self.config.max_gap_periods)
+        if reason:
+            return self._skip(index, t0, end_ns, reason)
+        expected = self.window_ns / (period_s * _NS)
+        if len(window) < 0.9 * expected:
+            return self._skip(index, t0, end_ns, "too_few_samples")
+        started = self._clock()
+        out: dict[str, Any] = {
+            "index": index,
+            "t_ns": int(end_ns),
+            "window": [int(t0), int(end_ns)],
+            "n_samples": len(window),
+            "sample_rate_hz": 1.0 / period_s,
+        }
+        signals = dict(window.signals)
+        flags: list[str] = []
+        for circuit in self.circuits:
+            if any(np.isnan(signals[c][0]) for c in CIRCUIT_CHANNELS[circuit]):
+                continue  # the source lacks a channel this circuit needs
+            try:
+                out[circuit] = self._estimate_circuit(circuit, index, signals, period_s)
+            except (EstimationError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+                self.counts[f"{circuit}_failed"] += 1
+                flags.append(f"{circuit}: {exc}")
+                out[circuit] = self._held_output(circuit, reason=str(exc))
+        if not any(c in out for c in self.circuits):
+            return self._skip(index, t0, end_ns, "no_circuit_channels")
+        out["elapsed_ms"] = (self._clock() - started) / 1e6
+        out["flags"] = flags
+        self.counts["estimated"] += 1
+        self.last_estimate = out
+        return WindowResult(index, t0, end_ns, out, arrival_ns=int(window.arrival_ns[-1]))
+
+    def _skip(self, index: int, t0: int, t1: int, reason: str) -> WindowResult:
+        key = reason.split(":")[0]
+        self.counts[f"skipped:{key}"] += 1
+        self.last_skip_reason = reason
+        log.debug("window %d skipped: %s", index, reason)
+        return WindowResult(index, t0, t1, None, skip_reason=reason)
+
+    def _held_output(self, circuit: str, reason: str) -> dict[str, Any]:
+        tracker = self._trackers[circuit]
+        out: dict[str, Any] = {p: tracker.accepted.get(p) for p in CIRCUIT_PARAMS[circuit]}
+        out["quality"] = {p: ("held" if p in tracker.accepted else "none") for p in out}
+        out["error"] = reason
+        return out
+
+    def _estimate_circuit(
+        self, circuit: str, index: int, window: dict[str, np.ndarray], period_s: float
+    ) -> dict[str, Any]:
+        cfg = self.config
+        k = cfg.decimate
+        dt = period_s * k
+        # Decimation keeps the zero-order-hold model: inputs (voltages, the EMF's
+        # if and omega) averaged over each new period, outputs (the winding's
+        # current) sampled at its start.
+        outputs = {"field": ("if",), "armature": ("ia",)}[circuit]
+        s = {c: _decimated(window[c], k, sample=c in outputs) for c in CIRCUIT_CHANNELS[circuit]}
+        tracker = self._trackers[circuit]
+        rng = np.random.default_rng([cfg.seed, index, _CIRCUIT_INDEX[circuit]])
+        full: SearchRange
+        if circuit == "field":
+            full = field_search_range(s["vf"], s["if"], dt)
+        else:
+            full = armature_search_range(s["va"], s["ia"], s["if"], s["omega"], dt)
+        x0 = None
+        init = None
+        warm = tracker.factor is not None and "R" in tracker.accepted and "L" in tracker.accepted
+        if warm:
+            assert tracker.factor is not None
+            r_prev, l_prev = tracker.accepted["R"], tracker.accepted["L"]
+            r_in = min(max(r_prev, full.resistance_ohm[0]), full.resistance_ohm[1])
+            l_in = min(max(l_prev, full.inductance_h[0]), full.inductance_h[1])
+            x0 = (r_in, l_in)
+            init = full.around(r_in, l_in, tracker.factor)
+        kwargs: dict[str, Any] = dict(
+            search_range=full,
+            n_particles=cfg.warm_particles if warm else cfg.cold_particles,
+            max_iterations=cfg.warm_iterations if warm else cfg.cold_iterations,
+            rng=rng,
+            x0=x0,
+            init_range=init,
+            explore_fraction=cfg.explore_fraction if warm else 0.0,
+        )
+        est: CircuitEstimate
+        if circuit == "field":
+            est = estimate_field(s["vf"], s["if"], dt, **kwargs)
+        else:
+            est = estimate_armature(s["va"], s["ia"], s["if"], s["omega"], dt, **kwargs)
+        return self._judge(circuit, tracker, est, warm)
+
+    def _judge(
+        self, circuit: str, tracker: _Tracker, est: CircuitEstimate, warm: bool
+    ) -> dict[str, Any]:
+        """Per-parameter quality, the values reported, and the next window's warm start."""
+        cfg = self.config
+        limits = {"R": cfg.quality.R, "L": cfg.quality.L, "K": cfg.quality.K}
+        agree = {"R": cfg.agree.R, "L": cfg.agree.L, "K": cfg.agree.K}
+        raw = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}
+        quality: dict[str, str] = {}
+        rel_std: dict[str, float | None] = {}
+        reference = {p: statistics.median(v) for p, v in tracker.recent.items() if v}
+        jumped = False
+        identified = {}
+        for p in CIRCUIT_PARAMS[circuit]:
+            rs = est.relative_std(p)
+            rel_std[p] = _finite_or_none(rs)
+            value = raw[p]
+            identified[p] = value is not None and math.isfinite(value) and rs <= limits[p]
+        if circuit == "armature" and not (identified["R"] and identified["K"]):
+            # R and K share the static balance va = R*ia + K*if*omega: one without
+            # the other is a biased split, so neither moves.
+            identified["R"] = identified["K"] = False
+        for p in CIRCUIT_PARAMS[circuit]:
+            value = raw[p]
+            if not identified[p]:
+                quality[p] = "held" if p in tracker.accepted else "none"
+                continue
+            assert value is not None
+            if p in reference and abs(value / reference[p] - 1.0) > agree[p]:
+                # A jump counts only once `confirm_windows` windows in a row agree on it.
+                jumped = True
+                pending = tracker.candidates.setdefault(p, deque(maxlen=cfg.confirm_windows))
+                pending.append(float(value))
+                spread = (max(pending) - min(pending)) / abs(value)
+                if len(pending) < cfg.confirm_windows or spread > agree[p]:
+                    quality[p] = "unconfirmed"
+                    continue
+            confirmed = tracker.candidates.pop(p, None)
+            quality[p] = "ok"
+            tracker.accepted[p] = float(value)
+            recent = tracker.recent.setdefault(p, deque(maxlen=9))
+            if confirmed:
+                recent.clear()  # a confirmed change: the new level is the reference
+                recent.extend(confirmed)
+            else:
+                recent.append(float(value))
+        history = list(tracker.rms_history)
+        degraded = len(history) >= 3 and est.rms_a > cfg.degrade_ratio * statistics.median(history)
+        tracker.rms_history.append(est.rms_a)
+        known = "R" in tracker.accepted and "L" in tracker.accepted
+        if jumped or degraded:
+            # Widen; after a large jump search from scratch over the full range.
+            self.counts[f"{circuit}_widened"] += 1
+            base = tracker.factor if tracker.factor is not None else cfg.initial_range_factor
+            widened = 1.0 + (base - 1.0) * cfg.widen
+            tracker.factor = None if widened >= cfg.max_range_factor else widened
+        elif known:
+            if tracker.factor is None:
+                tracker.factor = cfg.initial_range_factor
+            elif warm:
+                tracker.factor = max(
+                    cfg.min_range_factor, 1.0 + (tracker.factor - 1.0) * cfg.shrink
+                )
+        if circuit == "field" and quality.get("L") == "ok":
+            tau = tracker.accepted["L"] / tracker.accepted["R"]
+            if cfg.window_s < cfg.min_field_taus * tau:
+                if "window_short_for_field" not in self.warnings:
+                    log.warning(
+                        "window_s = %g s is shorter than %g field time constants (%.3g s each): "
+                        "raise observer.window_s",
+                        cfg.window_s, cfg.min_field_taus, tau,
+                    )  # fmt: skip
+                self.warnings.add("window_short_for_field")
+        out: dict[str, Any] = {p: tracker.accepted.get(p) for p in CIRCUIT_PARAMS[circuit]}
+        out["rms"] = _finite_or_none(est.rms_a)
+        out["quality"] = quality
+        out["rel_std"] = rel_std
+        out["raw"] = {p: _finite_or_none(raw[p]) for p in CIRCUIT_PARAMS[circuit]}
+        out["warm"] = warm
+        out["range_factor"] = tracker.factor
+        out["evaluations"] = est.pso.n_evaluations
+        if circuit == "armature":
+            out["input_noise_var"] = est.input_noise_var
+        return out
+
+    def health(self) -> dict[str, Any]:
+        """Counters for the health topic."""
+        return {
+            "windows": dict(self.counts),
+            "next_index": self.next_index,
+            "last_skip_reason": self.last_skip_reason,
+            "warnings": sorted(self.warnings),
+            "range_factor": {c: t.factor for c, t in self._trackers.items()},
+        }
+
+
+def warm_up_kernels() -> float:
+    """Compile (or load from the numba cache) every kernel the observer uses; seconds taken."""
+    from observer.motor import P12
+    from observer.simulate import simulate
+
+    started = time.monotonic()
+    rec = simulate(P12, duration_s=0.2, sample_rate_hz=1000.0, noise=0.002, seed=0)
+    # Only compilation matters here: a fit of 0.2 s may fail, the kernels are loaded anyway.
+    try:
+        estimate_field(rec["vf"], rec["if"], rec.dt, n_particles=4, max_iterations=2, rng=0)
+    except (ArithmeticError, ValueError):
+        pass
+    try:
+        estimate_armature(
+            rec["va"], rec["ia"], rec["if"], rec["omega"], rec.dt,
+            n_particles=4, max_iterations=2, rng=0,
+        )  # fmt: skip
+    except (ArithmeticError, ValueError):
+        pass
+    return time.monotonic() - started

@@ -1,0 +1,160 @@
+"""Zenoh output: estimates and health as JSON, and a queryable answering with the latest estimate.
+
+Keys: ``dcobserver/<drive_id>/estimate``, ``dcobserver/<drive_id>/health``,
+``dcobserver/<drive_id>/latest`` (queryable). ``put`` uses congestion control
+DROP, so publishing never blocks the observer. The session is opened in a
+background thread and retried every ``retry_s`` while it fails (router or
+peer unreachable, port in use): meanwhile estimates are counted as not
+published and everything else goes on.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from typing import Any
+
+from observer.config import ZenohConfig
+
+log = logging.getLogger(__name__)
+
+
+def zenoh_config_json(config: ZenohConfig) -> str:
+    """The JSON5 text of a ``zenoh.Config`` for these settings."""
+    return json.dumps(
+        {
+            "mode": config.mode,
+            "listen": {"endpoints": list(config.listen)},
+            "connect": {"endpoints": list(config.connect)},
+            "scouting": {
+                "multicast": {"enabled": config.multicast_scouting},
+                "gossip": {"enabled": config.multicast_scouting},
+            },
+        }
+    )
+
+
+def key(drive_id: str, leaf: str) -> str:
+    return f"dcobserver/{drive_id}/{leaf}"
+
+
+class ZenohPublisher:
+    """Publishes estimates and health; opens its session in the background."""
+
+    def __init__(self, config: ZenohConfig, drive_id: str) -> None:
+        self.config = config
+        self.drive_id = drive_id
+        self._session: Any = None
+        self._publishers: dict[str, Any] = {}
+        self._queryable: Any = None
+        self._latest: bytes | None = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._health: dict[str, Any] = {
+            "state": "disabled" if not config.enabled else "connecting",
+            "published": 0,
+            "not_published": 0,
+            "errors": 0,
+            "queries": 0,
+            "last_error": "",
+        }
+        self._thread = threading.Thread(target=self._connect_loop, name="zenoh-open", daemon=True)
+
+    def start(self) -> None:
+        if self.config.enabled:
+            self._thread.start()
+
+    def _connect_loop(self) -> None:
+        import zenoh
+
+        while not self._stop.is_set():
+            try:
+                session = zenoh.open(zenoh.Config.from_json5(zenoh_config_json(self.config)))
+                drop = zenoh.CongestionControl.DROP
+                publishers = {
+                    leaf: session.declare_publisher(
+                        key(self.drive_id, leaf), congestion_control=drop
+                    )
+                    for leaf in ("estimate", "health")
+                }
+                queryable = session.declare_queryable(key(self.drive_id, "latest"), self._on_query)
+            except Exception as exc:
+                with self._lock:
+                    self._health["errors"] += 1
+                    self._health["last_error"] = str(exc).splitlines()[0] if str(exc) else repr(exc)
+                    self._health["state"] = "unreachable"
+                log.warning(
+                    "zenoh: cannot open session (%s); estimating goes on, retry in %g s",
+                    self._health["last_error"], self.config.retry_s,
+                )  # fmt: skip
+                self._stop.wait(self.config.retry_s)
+                continue
+            with self._lock:
+                if self._stop.is_set():
+                    session.close()
+                    return
+                self._session = session
+                self._publishers = publishers
+                self._queryable = queryable
+                self._health["state"] = "open"
+            log.info(
+                "zenoh: publishing on %s (listen %s, connect %s)",
+                key(self.drive_id, "{estimate,health,latest}"),
+                ",".join(self.config.listen) or "-", ",".join(self.config.connect) or "-",
+            )  # fmt: skip
+            return
+
+    def _on_query(self, query: Any) -> None:
+        # Runs on a zenoh thread: only reads a reference and replies, never blocks.
+        latest = self._latest
+        self._health["queries"] += 1
+        try:
+            if latest is not None:
+                query.reply(key(self.drive_id, "latest"), latest)
+        except Exception as exc:
+            self._health["errors"] += 1
+            self._health["last_error"] = f"reply: {exc}"
+
+    def publish(self, leaf: str, payload: bytes) -> bool:
+        """Put ``payload`` on ``dcobserver/<drive_id>/<leaf>``; False if not connected."""
+        if leaf == "estimate":
+            self._latest = payload
+        publisher = self._publishers.get(leaf)
+        if publisher is None:
+            with self._lock:
+                self._health["not_published"] += 1
+            return False
+        try:
+            publisher.put(payload)
+        except Exception as exc:
+            with self._lock:
+                self._health["errors"] += 1
+                self._health["last_error"] = str(exc)
+            return False
+        with self._lock:
+            self._health["published"] += 1
+        return True
+
+    def health(self) -> dict[str, Any]:
+        with self._lock:
+            return dict(self._health)
+
+    def close(self) -> None:
+        """Undeclare and close the session (reverse order of opening)."""
+        self._stop.set()
+        with self._lock:
+            session, self._session = self._session, None
+            publishers, self._publishers = self._publishers, {}
+            queryable, self._queryable = self._queryable, None
+            if self.config.enabled:
+                self._health["state"] = "closed"
+        try:
+            if queryable is not None:
+                queryable.undeclare()
+            for publisher in publishers.values():
+                publisher.undeclare()
+            if session is not None:
+                session.close()
+        except Exception as exc:
+            log.warning("zenoh: error while closing: %s", exc)

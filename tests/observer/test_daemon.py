@@ -1,0 +1,398 @@
+"""`dcobserver run` as a real process: Zenoh to a subscriber process, MCAP log, systemd notify,
+kill -9 and recover, unreachable Zenoh and a full log disk, bad config; plus the unit file."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from observer.motor import P12
+from observer.recording import Recording, read_recording, write_recording
+from observer.simulate import simulate
+from replay.source import iter_mcap_blocks
+
+REPO = Path(__file__).resolve().parents[2]
+RA_RISE = 1.10
+SEGMENT_S = 8.0
+
+
+def _env(**extra):
+    env = {**os.environ, "PYTHONPATH": str(REPO), **extra}
+    env.pop("NOTIFY_SOCKET", None)
+    env.pop("WATCHDOG_USEC", None)
+    env.update(extra)
+    return env
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Child:
+    """A subprocess whose stdout and stderr lines are collected by reader threads."""
+
+    def __init__(self, args, env=None, prefix=()):
+        self.proc = subprocess.Popen(
+            [*prefix, sys.executable, "-m", "observer.cli", *args],
+            cwd=REPO, env=env or _env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True,
+        )  # fmt: skip
+        self.lines: queue.Queue[tuple[str, str]] = queue.Queue()
+        self.stdout: list[str] = []
+        self.stderr: list[str] = []
+        for name, stream, store in (
+            ("out", self.proc.stdout, self.stdout),
+            ("err", self.proc.stderr, self.stderr),
+        ):
+            threading.Thread(target=self._pump, args=(name, stream, store), daemon=True).start()
+
+    def _pump(self, name, stream, store):
+        for line in stream:
+            store.append(line)
+            self.lines.put((name, line))
+
+    def wait_line(self, pattern, timeout=60.0, stream="err"):
+        deadline = time.monotonic() + timeout
+        regex = re.compile(pattern)
+        while time.monotonic() < deadline:
+            try:
+                name, line = self.lines.get(timeout=0.2)
+            except queue.Empty:
+                if self.proc.poll() is not None and self.lines.empty():
+                    break
+                continue
+            if name == stream and regex.search(line):
+                return line
+        tail = "".join(self.stderr[-20:])
+        raise AssertionError(f"no line matching {pattern!r} within {timeout} s; stderr:\n{tail}")
+
+    def kill(self):
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait(10)
+
+
+@pytest.fixture
+def children():
+    started: list[Child] = []
+
+    def start(args, **kwargs):
+        child = Child(args, **kwargs)
+        started.append(child)
+        return child
+
+    yield start
+    for child in started:
+        child.kill()
+
+
+@pytest.fixture(scope="module")
+def ra_rise_recording(tmp_path_factory):
+    """16 s of the P-12 at 2 kHz whose armature resistance rises 10 % at 8 s."""
+    warm = P12.__class__(**{**P12.to_dict(), "armature_resistance_ohm": 3.5 * RA_RISE})
+    a = simulate(P12, duration_s=SEGMENT_S, sample_rate_hz=2000.0, noise=0.002, seed=21)
+    b = simulate(warm, duration_s=SEGMENT_S, sample_rate_hz=2000.0, noise=0.002, seed=22)
+    t = np.arange(a.n_samples + b.n_samples) / 2000.0
+    rec = Recording(
+        t=t,
+        signals={c: np.concatenate([a[c], b[c]]) for c in a.channels},
+        metadata={"note": "Ra rises 10 % at 8 s"},
+    )
+    path = tmp_path_factory.mktemp("rec") / "ra_rise.mcap"
+    write_recording(rec, path)
+    return path
+
+
+def _config(tmp_path, recording, *, speed=2.0, loop=False, zenoh="", log_dir=None, extra=""):
+    log = f'dir = "{log_dir}"\nflush_s = 0.5' if log_dir else 'dir = ""'
+    text = f"""
+[source]
+kind = "replay"
+[source.options]
+path = "{recording}"
+speed = {speed}
+block_s = 0.05
+loop = {str(loop).lower()}
+[observer]
+drive_id = "test"
+window_s = 1.0
+hop_s = 0.25
+cold_particles = 30
+cold_iterations = 20
+warm_particles = 16
+warm_iterations = 12
+health_s = 0.5
+stall_s = 0.5
+[zenoh]
+{zenoh or "enabled = false"}
+[log]
+{log}
+{extra}
+"""
+    path = tmp_path / "daemon.toml"
+    path.write_text(text)
+    return path
+
+
+def _mcap_messages(path):
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        schemas = {s.name for s in summary.schemas.values()}
+        out: dict[str, list] = {}
+        for _schema, channel, message in reader.iter_messages():
+            out.setdefault(channel.topic, []).append(message)
+    return schemas, out
+
+
+def _strip(e):
+    return {k: v for k, v in e.items() if k not in ("elapsed_ms", "drive_id")}
+
+
+def test_done_when_subscriber_tracks_ra_rise_and_log_is_readable(
+    tmp_path, children, ra_rise_recording
+):
+    port = _free_port()
+    sub = children(
+        ["subscribe", "dcobserver/*/estimate", "--json", "--listen",
+         f"tcp/127.0.0.1:{port}", "--timeout", "120"],
+    )  # fmt: skip
+    sub.wait_line("subscribed to", timeout=30)
+    zenoh = f'mode = "peer"\nlisten = []\nconnect = ["tcp/127.0.0.1:{port}"]'
+    log_dir = tmp_path / "logs"
+    cfg = _config(tmp_path, ra_rise_recording, speed=2.0, zenoh=zenoh, log_dir=log_dir)
+    daemon = children(["run", "--config", str(cfg)])
+    assert daemon.proc.wait(120) == 0, "".join(daemon.stderr[-20:])
+    # The last estimates may still be in flight: wait until the subscriber has the last one.
+    n_windows = int((2 * SEGMENT_S - 0.0005 - 1.0) / 0.25) + 1  # last sample at 15.9995 s
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        got = [json.loads(x) for x in sub.stdout if x.startswith("{")]
+        if got and got[-1]["index"] == n_windows - 1:
+            break
+        sub.lines.get(timeout=0.5) if not sub.lines.empty() else time.sleep(0.05)
+    got = [json.loads(x) for x in sub.stdout if x.startswith("{")]
+    assert len(got) >= n_windows // 2, "the subscriber received estimates over Zenoh"
+    assert {e["drive_id"] for e in got} == {"test"}
+
+    def ra(t0, t1):
+        return [
+            e["armature"]["R"] for e in got
+            if t0 <= e["t_ns"] / 1e9 <= t1 and e["armature"]["quality"]["R"] == "ok"
+        ]  # fmt: skip
+
+    before = ra(3.0, SEGMENT_S)
+    assert before and np.median(before) == pytest.approx(3.5, rel=0.02)
+    # The first window wholly after the change ends at 9 s; within a few windows the
+    # reported Ra is the new value.
+    after = [e for e in got if e["t_ns"] / 1e9 >= SEGMENT_S + 1.0]
+    tracked = [
+        e for e in after
+        if e["armature"]["R"] == pytest.approx(3.5 * RA_RISE, rel=0.02)
+    ]  # fmt: skip
+    assert tracked, [e["armature"]["R"] for e in after]
+    assert (tracked[0]["t_ns"] / 1e9) - (SEGMENT_S + 1.0) <= 8 * 0.25
+    late = ra(SEGMENT_S + 3.0, 2 * SEGMENT_S)
+    assert late and np.median(late) == pytest.approx(3.5 * RA_RISE, rel=0.02)
+
+    # The log: valid, indexed, with the three schemas; the samples are the recording's.
+    files = sorted(log_dir.glob("*.mcap"))
+    assert len(files) == 1
+    schemas, topics = _mcap_messages(files[0])
+    assert {"dcobserver.SampleBlock", "dcobserver.Estimate", "dcobserver.Health"} <= schemas
+    assert topics["/health"] and topics["/estimate"]
+    logged = read_recording(files[0])
+    original = read_recording(ra_rise_recording)
+    assert np.array_equal(logged["ia"], original["ia"])
+    live = [json.loads(m.data) for m in topics["/estimate"]]
+    assert len(live) == n_windows
+
+    # Replay of the daemon's own log: the same estimates, number for number.
+    replay = children(["replay", str(files[0]), "--config", str(cfg), "--json", "--no-progress"])
+    assert replay.proc.wait(120) == 0, "".join(replay.stderr[-10:])
+    time.sleep(0)  # let the pump threads finish reading
+    deadline = time.monotonic() + 5
+    while len([x for x in replay.stdout if x.startswith("{")]) < len(live):
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    offline = [json.loads(x) for x in replay.stdout if x.startswith("{")]
+    assert [_strip(e) for e in offline] == [_strip(e) for e in live]
+
+
+def _notify_socket(tmp_path):
+    path = str(tmp_path / "notify.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(path)
+    sock.settimeout(0.5)
+    return sock, path
+
+
+def _wait_notify(sock, wanted, timeout=60.0):
+    deadline = time.monotonic() + timeout
+    seen = []
+    while time.monotonic() < deadline:
+        try:
+            msg = sock.recv(4096).decode()
+        except TimeoutError:
+            continue
+        seen.append(msg)
+        if wanted in msg.splitlines():
+            return seen
+    raise AssertionError(f"no {wanted!r} from the daemon; got {seen}")
+
+
+def test_systemd_notify_watchdog_reload_and_sigterm_finishes_the_log(
+    tmp_path, children, ra_rise_recording
+):
+    sock, path = _notify_socket(tmp_path)
+    log_dir = tmp_path / "logs"
+    cfg = _config(tmp_path, ra_rise_recording, speed=1.0, loop=True, log_dir=log_dir)
+    daemon = children(
+        ["run", "--config", str(cfg), "--quiet-estimates"],
+        env=_env(NOTIFY_SOCKET=path, WATCHDOG_USEC="400000"),
+    )
+    try:
+        seen = _wait_notify(sock, "READY=1")
+        assert any("STATUS=compiling numba kernels" in m for m in seen)
+        _wait_notify(sock, "WATCHDOG=1", timeout=10)
+        _wait_notify(sock, "WATCHDOG=1", timeout=10)
+        daemon.proc.send_signal(signal.SIGHUP)
+        _wait_notify(sock, "RELOADING=1", timeout=10)
+        _wait_notify(sock, "READY=1", timeout=30)
+        daemon.wait_line("reloading", timeout=5)
+        daemon.proc.send_signal(signal.SIGTERM)
+        _wait_notify(sock, "STOPPING=1", timeout=10)
+        assert daemon.proc.wait(30) == 0
+    finally:
+        sock.close()
+    files = sorted(log_dir.glob("*.mcap"))
+    assert len(files) == 2  # one per configuration: the reload finished the first
+    for f in files:
+        schemas, topics = _mcap_messages(f)  # make_reader needs the finished summary
+        assert "/samples" in topics
+
+
+def test_kill_9_leaves_a_log_readable_to_the_last_second_and_recover_fixes_it(
+    tmp_path, children, ra_rise_recording
+):
+    log_dir = tmp_path / "logs"
+    port = _free_port()
+    zenoh = f'listen = ["tcp/127.0.0.1:{port}"]'
+    cfg = _config(tmp_path, ra_rise_recording, speed=2.0, loop=True, log_dir=log_dir, zenoh=zenoh)
+    daemon = children(["run", "--config", str(cfg), "--quiet-estimates"])
+    daemon.wait_line("MCAP log: writing", timeout=60)
+    # Meanwhile another process asks the queryable for the latest estimate.
+    query = children(
+        ["subscribe", "--latest", "--json", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "30"]
+    )
+    assert query.proc.wait(60) == 0, "".join(query.stderr)
+    latest = json.loads(next(x for x in query.stdout if x.startswith("{")))
+    assert latest["drive_id"] == "test" and latest["armature"]["R"] > 0
+    (log_file,) = log_dir.glob("*.mcap")
+    deadline = time.monotonic() + 60
+    seen = 0
+    while seen < 6000:  # 3 s of samples readable in the file while it is being written
+        assert time.monotonic() < deadline, "log did not grow"
+        seen = sum(t.size for t, _ in iter_mcap_blocks(log_file))
+        time.sleep(0.1)
+    daemon.proc.send_signal(signal.SIGKILL)
+    daemon.proc.wait(10)
+    with pytest.raises(Exception):  # noqa: B017 - any error: no footer, no summary
+        with open(log_file, "rb") as f:
+            make_reader(f).get_summary()
+    cut = read_recording(log_file)  # tolerates the unfinished file
+    assert cut.n_samples >= seen
+    out = tmp_path / "recovered.mcap"
+    rec = children(["recover", str(log_file), "-o", str(out)])
+    assert rec.proc.wait(60) == 0
+    schemas, topics = _mcap_messages(out)
+    assert {"dcobserver.SampleBlock", "dcobserver.Estimate", "dcobserver.Health"} <= schemas
+    assert read_recording(out).n_samples == cut.n_samples
+    assert topics["/estimate"]
+
+
+@pytest.mark.skipif(shutil.which("prlimit") is None, reason="needs util-linux prlimit")
+def test_unreachable_zenoh_and_full_log_disk_keep_it_estimating(
+    tmp_path, children, ra_rise_recording
+):
+    """Zenoh client mode towards a port nobody listens on, and a log file size limit
+    (RLIMIT_FSIZE: writes fail with EFBIG as on a full disk): estimates go on, both are
+    reported in health."""
+    port = _free_port()
+    zenoh = f'mode = "client"\nlisten = []\nconnect = ["tcp/127.0.0.1:{port}"]\nretry_s = 0.5'
+    log_dir = tmp_path / "logs"
+    cfg = _config(tmp_path, ra_rise_recording, speed=2.0, zenoh=zenoh, log_dir=log_dir)
+    daemon = children(["run", "--config", str(cfg)], prefix=("prlimit", "--fsize=150000"))
+    daemon.wait_line(r"health: .*zenoh_unreachable", timeout=60)
+    daemon.wait_line(r"health: .*log_error", timeout=60)
+    # Still estimating after both faults were reported:
+    daemon.wait_line(r"window \d+ t=", timeout=30)
+    daemon.wait_line(r"window \d+ t=", timeout=30)
+    assert daemon.proc.poll() is None or daemon.proc.returncode == 0
+    daemon.proc.send_signal(signal.SIGTERM)
+    assert daemon.proc.wait(30) == 0
+
+
+def test_bad_config_is_one_line_naming_key_and_file(tmp_path, children, ra_rise_recording):
+    cfg = _config(tmp_path, ra_rise_recording, extra="")
+    cfg.write_text(cfg.read_text().replace("hop_s = 0.25", "hop_sec = 0.25"))
+    daemon = children(["run", "--config", str(cfg)])
+    assert daemon.proc.wait(30) == 2
+    err = "".join(daemon.stderr).strip()
+    assert len(err.splitlines()) == 1
+    assert str(cfg) in err and "observer.hop_sec" in err
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="needs systemd-analyze")
+def test_systemd_unit_verifies_cleanly(tmp_path):
+    unit = REPO / "systemd" / "dcobserver.service"
+    # verify wants ExecStart's binary to exist: point it at this interpreter's console script.
+    text = unit.read_text()
+    exe = Path(sys.executable).with_name("dcobserver")
+    assert exe.exists()
+    text = re.sub(r"ExecStart=\S+", f"ExecStart={exe}", text)
+    copy = tmp_path / "dcobserver.service"
+    copy.write_text(text)
+    result = subprocess.run(
+        ["systemd-analyze", "verify", str(copy)], capture_output=True, text=True, timeout=60
+    )
+    output = (result.stdout + result.stderr).strip()
+    assert result.returncode == 0 and output == "", output
+    for key in ("Type=notify", "WatchdogSec=", "Restart=on-failure", "NUMBA_CACHE_DIR="):
+        assert key in text
+
+
+def test_run_without_arguments_runs_the_demo_and_converges(children):
+    """The README's main command: the bundled demo, estimates near the P-12's values."""
+    assert (REPO / "replay" / "data" / "demo.mcap").stat().st_size < 5e6
+    daemon = children(["run"])
+    pattern = re.compile(r"armature: R=([\d.]+) ohm \(ok\), L=[\d.e-]+ H \(\w+\), K=([\d.]+) H")
+    deadline = time.monotonic() + 60
+    while True:
+        line = daemon.wait_line(r"window \d+ t=", timeout=max(1.0, deadline - time.monotonic()))
+        m = pattern.search(line)
+        field = re.search(r"field: R=([\d.]+) ohm \(ok\)", line)
+        if m and field:
+            break
+    assert float(m.group(1)) == pytest.approx(P12.armature_resistance_ohm, rel=0.02)
+    assert float(m.group(2)) == pytest.approx(P12.emf_constant_h, rel=0.02)
+    field_r = float(field.group(1))
+    assert field_r == pytest.approx(P12.field_resistance_ohm, rel=0.01)
+    daemon.proc.send_signal(signal.SIGINT)
+    assert daemon.proc.wait(30) == 0
