@@ -279,14 +279,16 @@ def timing(w: Window, args: argparse.Namespace, bar: tqdm) -> list[Timed]:
 
             return run
 
+        # pyswarms evaluates the swarm once per iteration, the initial one included.
+        py_budget = f"{particles * its}"
         add("pyswarms `GlobalBestPSO` + compiled `rl_swarm_costs`", with_pyswarms(cost),
-            args.repeats, budget)  # fmt: skip
+            args.repeats, py_budget)  # fmt: skip
         numpy_cost = peers.numpy_field_cost(vf, i_f, dt)
         lfilter_cost = peers.lfilter_field_cost(vf, i_f, dt)
         add("pyswarms `GlobalBestPSO` + numpy objective (loop over samples)",
-            with_pyswarms(numpy_cost), args.slow_repeats, budget)  # fmt: skip
+            with_pyswarms(numpy_cost), args.slow_repeats, py_budget)  # fmt: skip
         add("pyswarms `GlobalBestPSO` + scipy `lfilter` objective (loop over particles)",
-            with_pyswarms(lfilter_cost), args.slow_repeats, budget)  # fmt: skip
+            with_pyswarms(lfilter_cost), args.slow_repeats, py_budget)  # fmt: skip
 
     de_evals = [0]
 

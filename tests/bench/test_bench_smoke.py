@@ -8,8 +8,12 @@ pyswarms is only in the ``bench`` extra, so it is left out here either way.
 
 from __future__ import annotations
 
+import os
 import re
 import struct
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +23,7 @@ from bench.common import PAPER_COLUMNS, field_step_index, p12_window
 from observer import kernels
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _table_rows(text: str) -> dict[str, list[str]]:
@@ -113,3 +118,23 @@ def test_window_starts_before_a_field_step():
     assert step == 1000 // 4
     with pytest.raises(ValueError, match="no field-voltage step"):
         field_step_index(np.full(100, 220.0))
+
+
+@pytest.mark.parametrize(
+    ("script", "option"), [("paper_table", "--convergence-iterations"), ("bench_pso", "--mc-seeds")]
+)
+def test_scripts_have_help_and_reject_bad_arguments(script, option):
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    cmd = [sys.executable, "-m", f"bench.{script}"]
+    done = subprocess.run(
+        [*cmd, "--help"], cwd=REPO, env=env, capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0
+    assert "--quick" in done.stdout and option in done.stdout
+    bad = subprocess.run(
+        [*cmd, "--quick", "--no-such-option"],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert bad.returncode == 2
+    assert "unrecognized arguments: --no-such-option" in bad.stderr
+    assert "Traceback" not in bad.stderr
