@@ -503,7 +503,7 @@ def render(
     lines = [
         "# Benchmarks: this PSO estimator against its peers",
         "",
-        f"Made by `{command}` in {elapsed_s:.0f} s on {machine_description()}. All methods run "
+        f"Made by `{command}` in {elapsed_s:.0f} s on {args.machine}. All methods run "
         "single-threaded in one process (the numba kernels are serial); the machine is shared, "
         "so the load average above is part of the result.",
         "",
@@ -748,6 +748,7 @@ def _targets(
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
+    args.machine = machine_description()  # the load average before this run adds its own
     started = time.perf_counter()
     w = p12_window(args.seed, noise=args.noise)
     n_timing = 10 + (3 if args.pyswarms else 0)

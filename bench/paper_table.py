@@ -225,7 +225,7 @@ def format_table(
         "",
         "Made by `python -m bench.paper_table"
         + (" --quick" if args.quick else "")
-        + f" --seeds {n_seeds}` ({machine_description()}).",
+        + f" --seeds {n_seeds}` ({args.machine}).",
         "",
         f"Data: per seed, a {WINDOW_SAMPLES}-sample window ({WINDOW_SAMPLES / SAMPLE_RATE_HZ:g} s "
         f"at {SAMPLE_RATE_HZ:g} Hz) of a simulated P-12 recording (`observer.simulate`, "
@@ -326,6 +326,7 @@ def write_figure(path: Path, excess: dict[tuple[str, str], np.ndarray], n_seeds:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
+    args.machine = machine_description()  # the load average before this run adds its own
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     windows = [p12_window(seed, noise=args.noise) for seed in seeds]
     # Compile (or load from numba's cache) before anything is timed.
