@@ -17,6 +17,7 @@ uncertainty is read from the Fisher information there.
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -26,6 +27,8 @@ import numpy as np
 
 from observer import kernels
 from observer.pso import ParticleSwarm, PSOResult
+
+log = logging.getLogger(__name__)
 
 CIRCUITS = ("field", "armature")
 
@@ -266,13 +269,32 @@ def _armature_linear(
 
 
 def _levenberg_marquardt(
-    residual: Any, theta: np.ndarray, *, max_iterations: int = 30, rtol: float = 1e-12
+    residual: Any,
+    theta: np.ndarray,
+    *,
+    lower: np.ndarray | None = None,
+    upper: np.ndarray | None = None,
+    max_iterations: int = 30,
+    rtol: float = 1e-12,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimise ``|residual(theta)|^2``; return ``theta``, residual and Jacobian there.
 
     Forward sensitivities are taken by central differences: the models are
-    cheap (microseconds per simulation) and smooth in every parameter.
+    cheap (microseconds per simulation) and smooth in every parameter. Steps
+    are kept inside ``[lower, upper]`` (the swarm's search range): in a window
+    that does not identify a parameter the cost is flat along it, and an
+    unbounded step would run ``log L`` to overflow.
     """
+    lo = np.full(theta.size, -np.inf) if lower is None else lower
+    hi = np.full(theta.size, np.inf) if upper is None else upper
+
+    def safe_residual(th: np.ndarray) -> np.ndarray | None:
+        try:
+            with np.errstate(all="ignore"):
+                r_ = residual(th)
+        except (OverflowError, ZeroDivisionError, FloatingPointError):
+            return None
+        return r_ if np.all(np.isfinite(r_)) else None
 
     def jacobian(th: np.ndarray) -> np.ndarray:
         cols = []
@@ -301,10 +323,14 @@ def _levenberg_marquardt(
             except np.linalg.LinAlgError:
                 damping *= 10
                 continue
-            trial = theta + step
-            r_trial = residual(trial)
+            trial = np.clip(theta + step, lo, hi)
+            r_safe = safe_residual(trial)
+            if r_safe is None:
+                damping *= 10
+                continue
+            r_trial = r_safe
             cost_trial = float(r_trial @ r_trial)
-            if np.isfinite(cost_trial) and cost_trial < cost:
+            if cost_trial < cost:
                 improved = True
                 break
             damping *= 10
@@ -317,6 +343,15 @@ def _levenberg_marquardt(
         if relative_gain < rtol:
             break
     return theta, r, jac
+
+
+def _log_limits(bounds: SearchRange, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Limits of ``(ln R, ln L, <free linear parameters>)`` from a search range."""
+    lower = np.full(size, -np.inf)
+    upper = np.full(size, np.inf)
+    lower[:2] = np.log([bounds.resistance_ohm[0], bounds.inductance_h[0]])
+    upper[:2] = np.log([bounds.resistance_ohm[1], bounds.inductance_h[1]])
+    return lower, upper
 
 
 def _crlb_std(
@@ -364,6 +399,10 @@ def input_noise_variance(residual: np.ndarray, a: float, b: float) -> float:
     autocovariance ``s * b^2 * a^tau / (1 - a^2)``; ``s`` is fitted by least
     squares over lags 1 to three time constants.
     """
+    if not math.exp(-1.0) <= a < 1.0:
+        # Time constant under one sample: input noise through the model is as
+        # white as current noise, so the two cannot be told apart.
+        return 0.0
     r = residual - residual.mean()
     n = r.size
     tau_samples = -1.0 / math.log(a) if 0 < a < 1 else float(n)
@@ -391,19 +430,34 @@ def _run_swarm(
     explore_fraction: float,
     tol: float,
 ) -> PSOResult:
-    swarm = ParticleSwarm(
-        cost,
-        search_range.log_bounds(),
-        n_particles=n_particles,
-        w=w,
-        schedule=schedule,
-        x0=None if x0 is None else np.log10(np.asarray(x0, dtype=np.float64)),
-        init_bounds=None if init_range is None else init_range.log_bounds(),
-        explore_fraction=explore_fraction,
-        tol=tol,
-        rng=rng,
-    )
-    return swarm.run(max_iterations)
+    def search(generator: np.random.Generator) -> PSOResult:
+        swarm = ParticleSwarm(
+            cost,
+            box,
+            n_particles=n_particles,
+            w=w,
+            schedule=schedule,
+            x0=None if x0 is None else np.log10(np.asarray(x0, dtype=np.float64)),
+            init_bounds=None if init_range is None else init_range.log_bounds(),
+            explore_fraction=explore_fraction,
+            tol=tol,
+            rng=generator,
+        )
+        return swarm.run(max_iterations)
+
+    box = search_range.log_bounds()
+    generator = np.random.default_rng(rng)
+    result = search(generator)
+    # A best on a wall of the box is usually a swarm that settled on a flat
+    # region (e.g. a time constant far below one sample, where the cost no
+    # longer depends on L): search once more with fresh draws, keep the better.
+    wall = 0.005 * (box[:, 1] - box[:, 0])
+    if np.any((result.x - box[:, 0] < wall) | (box[:, 1] - result.x < wall)):
+        retry = search(np.random.default_rng(generator.integers(2**63)))
+        if retry.cost < result.cost:
+            log.debug("swarm best on the search wall; the restart found a lower cost")
+            result = retry
+    return result
 
 
 def estimate_field(
@@ -464,8 +518,9 @@ def estimate_field(
         return i_f - kernels.simulate_rl(r_, l_, theta[2], vf, dt)
 
     theta = np.array([math.log(resistance), math.log(inductance), i0])
+    lower, upper = _log_limits(bounds, theta.size)
     if polish:
-        theta, resid, jac = _levenberg_marquardt(residual, theta)
+        theta, resid, jac = _levenberg_marquardt(residual, theta, lower=lower, upper=upper)
     else:
         resid = residual(theta)
         _, _, jac = _levenberg_marquardt(residual, theta, max_iterations=0)
@@ -561,8 +616,9 @@ def estimate_armature(
     theta = np.array(
         [math.log(resistance), math.log(inductance), i0] + ([k_value] if fit_k else [])
     )
+    lower, upper = _log_limits(bounds, theta.size)
     if polish:
-        theta, resid, jac = _levenberg_marquardt(residual, theta)
+        theta, resid, jac = _levenberg_marquardt(residual, theta, lower=lower, upper=upper)
     else:
         resid = residual(theta)
         _, _, jac = _levenberg_marquardt(residual, theta, max_iterations=0)

@@ -151,3 +151,19 @@ def test_armature_uncertainty_covers_the_error_in_weakly_excited_windows(p12_see
         value = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}[name]
         assert abs(value - truth) <= 3 * est.std[name] + 1e-9, (name, value, est.std[name])
     assert est.inductance_h > 0.01  # never the spurious La -> 0 minimum
+
+
+def test_swarm_on_a_flat_wall_restarts_and_noise_fit_needs_a_time_constant():
+    """Seed 2059 (found by bench/): the swarm settled where tau << one sample, the
+    cost there is flat in L, and the input-noise fit divided by ~0 (3e42 V^2),
+    which drove Ra to its lower bound. Both are guarded now."""
+    from bench.common import p12_window
+    from observer.estimate import input_noise_variance
+    from observer.simulate import NoiseLevels
+
+    w = p12_window(2059, noise=NoiseLevels(ia=0.006))
+    est = estimate_armature(w.va, w.ia, w.i_f, w.omega, w.dt, rng=2059)
+    assert _rel(est.resistance_ohm, 3.5) < 0.01
+    assert _rel(est.inductance_h, 0.02) < 0.05
+    resid = np.random.default_rng(0).normal(size=500)
+    assert input_noise_variance(resid, a=1e-9, b=0.2) == 0.0
