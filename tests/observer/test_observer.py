@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from drivers.base import SampleBlock
-from observer.config import ObserverConfig
+from observer.config import ObserverConfig, QualityConfig
 from observer.motor import P12
 from observer.observer import SlidingWindowObserver, check_window
 from observer.ringbuffer import RingBuffer
@@ -88,7 +88,7 @@ def test_constant_field_voltage_holds_field_inductance(p12_recording):
     assert field and all(f["quality"]["L"] in ("none", "held") for f in field)
     assert all(f["L"] is None for f in field)  # never identified, so never reported
     assert field[-1]["R"] == pytest.approx(rf, rel=0.01) and field[-1]["quality"]["R"] == "ok"
-    assert field[-1]["rel_std"]["L"] > 0.015
+    assert field[-1]["rel_std"]["L"] > QualityConfig().L
 
 
 def test_held_parameter_keeps_its_last_accepted_value(p12_run):
