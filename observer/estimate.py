@@ -362,7 +362,7 @@ def _crlb_std(
     With white residuals this is the Cramer-Rao bound ``sigma^2 (J'J)^-1``. The
     output-error residual is not white, though: noise on the measured voltages
     reaches it through the model and lasts a few time constants. The sandwich
-    ``(J'J)^-1 S (J'J)^-1``, with ``S`` the Newey-West (Bartlett-weighted)
+    ``(J'J)^-1 S (J'J)^-1``, with ``S`` the Bartlett-weighted (Newey-West)
     long-run covariance of the scores ``J_k r_k`` over three time constants,
     keeps the bound honest then, and equals it when the residual is white.
     """
@@ -375,11 +375,14 @@ def _crlb_std(
     white = sigma2 * np.diag(bread)
     max_lag = int(min(3.0 * time_constant_samples, 400, n // 4))
     if max_lag >= 1:
+        # Bartlett-weighted long-run covariance as overlapping batch means: the
+        # covariance of the scores' sums over every run of max_lag + 1 samples
+        # (one cumulative sum and one product instead of one product per lag).
         scores = jac * residual[:, None]
-        meat = scores.T @ scores
-        for lag in range(1, max_lag + 1):
-            c = scores[:-lag].T @ scores[lag:]
-            meat += (1.0 - lag / (max_lag + 1)) * (c + c.T)
+        cum = np.vstack([np.zeros((1, p)), np.cumsum(scores, axis=0)])
+        batch = max_lag + 1
+        sums = cum[batch:] - cum[:-batch]
+        meat = (sums.T @ sums) / batch * (n / sums.shape[0])
         meat *= n / max(n - p, 1)
         robust = np.diag(bread @ meat @ bread)
         # Never report less than the white-noise bound.
