@@ -275,7 +275,8 @@ def _levenberg_marquardt(
     lower: np.ndarray | None = None,
     upper: np.ndarray | None = None,
     max_iterations: int = 30,
-    rtol: float = 1e-12,
+    rtol: float = 1e-8,
+    step_tol: float = 1e-9,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimise ``|residual(theta)|^2``; return ``theta``, residual and Jacobian there.
 
@@ -337,10 +338,13 @@ def _levenberg_marquardt(
         if not improved:
             break
         relative_gain = (cost - cost_trial) / max(cost, 1e-300)
+        moved = float(np.max(np.abs(trial - theta) / np.maximum(np.abs(theta), 1.0)))
         theta, r, cost = trial, r_trial, cost_trial
         jac = jacobian(theta)
         damping = max(damping / 10, 1e-9)
-        if relative_gain < rtol:
+        # Converged, or creeping along a direction the window does not identify
+        # (flat cost, e.g. Lf under constant field voltage): more steps buy nothing.
+        if relative_gain < rtol or moved < step_tol:
             break
     return theta, r, jac
 
