@@ -398,9 +398,8 @@ def recover(source: str | os.PathLike[str], destination: str | os.PathLike[str])
         If ``source`` is not an MCAP file.
     """
     from mcap.records import Channel, Message, Metadata, Schema
-    from mcap.stream_reader import StreamReader
 
-    from observer.recording import RecordingError
+    from observer.recording import McapRecordStream, RecordingError
 
     src = os.fspath(source)
     try:
@@ -419,15 +418,8 @@ def recover(source: str | os.PathLike[str], destination: str | os.PathLike[str])
             schemas: dict[int, int] = {}
             channels: dict[int, int] = {}
             n = 0
-            records = StreamReader(stream, validate_crcs=True, record_size_limit=size).records
-            while True:
-                try:
-                    record = next(records)
-                except StopIteration:
-                    break
-                except Exception as exc:
-                    log.warning("%s: stops at the cut (%s)", src, exc)
-                    break
+            records = McapRecordStream(stream, size)
+            for record in records:
                 if isinstance(record, Schema) and record.id not in schemas:
                     schemas[record.id] = writer.register_schema(
                         record.name, record.encoding, record.data
@@ -450,5 +442,7 @@ def recover(source: str | os.PathLike[str], destination: str | os.PathLike[str])
                     n += 1
                 elif isinstance(record, Metadata):
                     writer.add_metadata(record.name, dict(record.metadata))
+            if records.cut_reason is not None:
+                log.warning("%s: stops at the cut (%s)", src, records.cut_reason)
             writer.finish()
     return n

@@ -1214,23 +1214,43 @@ def _scan_mcap_indexed(stream: IO[bytes]) -> _McapContent:
     return content
 
 
+class McapRecordStream:
+    """The records of an MCAP byte stream in file order, ending quietly at a cut.
+
+    A file a crash left behind has no footer (``make_reader`` cannot open it) and
+    may end inside a record. Iterating this yields every complete record and
+    stops at the first that cannot be read; ``cut_reason`` then says why (None
+    after a complete file). The daemon's log recovery and the replay source read
+    cut logs through this too.
+    """
+
+    def __init__(self, stream: IO[bytes], size: int) -> None:
+        self.stream = stream
+        self.size = max(size, 1)
+        self.cut_reason: str | None = None
+
+    def __iter__(self) -> Iterator[Any]:
+        # A record longer than the file can only come from a cut; CRCs catch a cut chunk.
+        records = StreamReader(self.stream, validate_crcs=True, record_size_limit=self.size).records
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                return
+            except Exception as exc:
+                # A cut shows up as whichever error the library meets first (EndOfFile,
+                # struct.error, a zstd/lz4 error, a CRC mismatch...): all mean "stop here".
+                self.cut_reason = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+                return
+            yield record
+
+
 def _scan_mcap_streaming(stream: IO[bytes], size: int) -> _McapContent:
     """Read records in file order, stopping quietly where the file is cut."""
-    # A record longer than the file can only come from a cut; CRCs catch a cut chunk.
-    records = StreamReader(stream, validate_crcs=True, record_size_limit=size).records
+    records = McapRecordStream(stream, size)
     channels: dict[int, Channel] = {}
     content = _McapContent()
-    while True:
-        try:
-            record = next(records)
-        except StopIteration:
-            break
-        except Exception as exc:
-            # A cut shows up as whichever error the library meets first (EndOfFile,
-            # struct.error, a zstd/lz4 error, a CRC mismatch...): all mean "stop here".
-            content.complete = False
-            content.cut_reason = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-            break
+    for record in records:
         if isinstance(record, Channel):
             channels[record.id] = record
         elif isinstance(record, Message):
@@ -1241,6 +1261,9 @@ def _scan_mcap_streaming(stream: IO[bytes], size: int) -> _McapContent:
                 )
         elif isinstance(record, Metadata) and record.name == METADATA_NAME:
             content.metadata.append(record)
+    if records.cut_reason is not None:
+        content.complete = False
+        content.cut_reason = records.cut_reason
     return content
 
 

@@ -67,24 +67,16 @@ def iter_mcap_blocks(path: str | os.PathLike[str]) -> Iterator[tuple[np.ndarray,
     the file is cut; a malformed message is logged and skipped.
     """
     from mcap.records import Channel, Message
-    from mcap.stream_reader import StreamReader
 
-    from observer.recording import SAMPLES_TOPIC, parse_sample_block
+    from observer.recording import SAMPLES_TOPIC, McapRecordStream, parse_sample_block
 
     name = os.fspath(path)
     size = os.path.getsize(name)
     channels: dict[int, Channel] = {}
     with open(name, "rb") as stream:
-        records = StreamReader(stream, validate_crcs=True, record_size_limit=max(size, 1)).records
+        records = McapRecordStream(stream, size)
         index = 0
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
-                return
-            except Exception as exc:  # a cut file ends with whichever error the reader meets
-                log.warning("%s: MCAP file ends early (%s); replayed up to the cut", name, exc)
-                return
+        for record in records:
             if isinstance(record, Channel):
                 channels[record.id] = record
             elif isinstance(record, Message):
@@ -96,6 +88,10 @@ def iter_mcap_blocks(path: str | os.PathLike[str]) -> Iterator[tuple[np.ndarray,
                     yield parse_sample_block(record.data)
                 except ValueError as exc:
                     log.warning("%s: skipping sample message %d: %s", name, index, exc)
+        if records.cut_reason is not None:
+            log.warning(
+                "%s: MCAP file ends early (%s); replayed up to the cut", name, records.cut_reason
+            )
 
 
 def _iter_file_blocks(path: str) -> Iterator[tuple[np.ndarray, dict]]:
