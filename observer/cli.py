@@ -28,6 +28,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "observer.commands.estimate",
         "estimate field and armature parameters of a recording",
     ),
+    "diagnose": (
+        "observer.commands.diagnose",
+        "locate model mismatch, name the missing physics, fit it and show the improvement",
+    ),
 }
 
 EXIT_USAGE = 2

@@ -102,6 +102,15 @@ def _eddy_step(
 
 
 @njit(nogil=True, cache=True)
+def _advanced(x: np.ndarray, k: int, m: int, f: float) -> float:
+    """``x`` at sample ``k + m + f`` (linear interpolation, clamped to the record)."""
+    n = x.shape[0]
+    i0 = min(k + m, n - 1)
+    i1 = min(k + m + 1, n - 1)
+    return (1.0 - f) * x[i0] + f * x[i1]
+
+
+@njit(nogil=True, cache=True)
 def field_residual(
     p: np.ndarray,
     vf: np.ndarray,
@@ -258,8 +267,9 @@ def armature_residual(
                 sv = (1.0 - f_skew) * yv1 + f_skew * yv2
                 se = (1.0 - f_skew) * ye1 + f_skew * ye2
                 sg = (1.0 - f_skew) * yg1 + f_skew * yg2
-            ia_true = ia_m[k] - off_a
-            d = ia_true - sv
+            d = ia_m[k] - off_a - sv
+            # The measured currents lag by the skew: as model inputs, read them ahead.
+            ia_true = _advanced(ia_m, k, m_skew, f_skew) - off_a
             if thermal:
                 rr = ra0 * (1.0 + theta[k])
                 a = math.exp(-rr * dt / la)
@@ -269,13 +279,13 @@ def armature_residual(
             if vb != 0.0:
                 u -= vb * math.tanh(ia_true / brush_width_a)
             if k == k0:
-                i_f = if_m[k] - off_f
-                q_prev = i_f / (1.0 + c * abs(i_f)) * (1.0 - beta * abs(ia_true)) * omega[k]
+                i_f = _advanced(if_m, k, m_skew, f_skew) - off_f
+                ia_k = _advanced(ia_m, k, m_skew, f_skew) - off_a
+                q_prev = i_f / (1.0 + c * abs(i_f)) * (1.0 - beta * abs(ia_k)) * omega[k]
             kn = k + 1 if k + 1 < k1 else k
-            i_fn = if_m[kn] - off_f
-            q_next = (
-                i_fn / (1.0 + c * abs(i_fn)) * (1.0 - beta * abs(ia_m[kn] - off_a)) * omega[kn]
-            )
+            i_fn = _advanced(if_m, kn, m_skew, f_skew) - off_f
+            ia_n = _advanced(ia_m, kn, m_skew, f_skew) - off_a
+            q_next = i_fn / (1.0 + c * abs(i_fn)) * (1.0 - beta * abs(ia_n)) * omega[kn]
             e = 0.5 * (q_prev + q_next)
             q_prev = q_next
             if not fit_k:
