@@ -175,6 +175,8 @@ class Diagnosis:
     residuals_before: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     residuals_after: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     conditions: dict[str, tuple[np.ndarray, str]] = field(default_factory=dict, repr=False)
+    #: The plain model refitted as the extensions are (same segments and compensation).
+    plain_refit: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @property
     def best(self) -> Finding | None:
@@ -193,6 +195,7 @@ class Diagnosis:
                 "field": self.baseline["field"].to_dict(),
                 "armature": self.baseline["armature"].to_dict(),
                 "rms": dict(self.baseline_rms),
+                "refit": self.plain_refit,
             },
             "noise_floor": {
                 c: {
@@ -319,7 +322,7 @@ def noise_floor(
         (c_slow, s), *_ = np.linalg.lstsq(design, acov[1:], rcond=None)
         s = max(float(s), 0.0)
         c_slow = max(float(c_slow), 0.0)
-        white = max(acov[0] - s - c_slow, 0.05 * total)
+        white = max(float(acov[0]) - s - c_slow, 1e-3 * total)
     else:
         dv = np.diff(input_voltage)
         mad = float(np.median(np.abs(dv - np.median(dv))))
@@ -481,28 +484,31 @@ def _describe_window(conds: dict[str, tuple[np.ndarray, str]], i0: int, i1: int,
     return ", ".join(words) if words else "no distinctive operating condition"
 
 
-def describe_periodicity(rec: Any, residual: np.ndarray, floor: NoiseFloor) -> str | None:
-    """If the residual is periodic in shaft angle, say at which multiple of shaft speed."""
+def periodic_structure(
+    rec: Any, residual: np.ndarray, floor: NoiseFloor, channel: str
+) -> ConditionStructure | None:
+    """A component of the residual periodic in shaft angle (harmonics 1..12), if significant."""
     ok = np.isfinite(residual)
     angle = np.cumsum(rec["omega"]) * rec.dt
     best: tuple[float, int, float] | None = None
     n_eff = ok.sum() / max(floor.tau_int, 1.0)
+    # Each coefficient's standard error under the floor, with correlated samples.
+    se = math.sqrt(2 * floor.variance_a2 / n_eff)
     for h in range(1, 13):
-        c, s = np.cos(h * angle[ok]), np.sin(h * angle[ok])
-        design = np.column_stack([c, s])
+        design = np.column_stack([np.cos(h * angle[ok]), np.sin(h * angle[ok])])
         coef, *_ = np.linalg.lstsq(design, residual[ok], rcond=None)
         amp = float(np.hypot(*coef))
-        # Each coefficient's standard error under the floor, with correlated samples.
-        se = math.sqrt(2 * floor.variance_a2 / n_eff)
         z = amp / se
         if z > 8 and (best is None or z > best[0]):
             best = (z, h, amp)
     if best is None:
         return None
-    return (
-        f"periodic at {best[1]}x shaft speed (amplitude {best[2]:.3g} A, z = {best[0]:.0f}): "
+    z, h, amp = best
+    desc = (
+        f"{channel} residual periodic at {h}x shaft speed (amplitude {amp:.3g} A, z = {z:.0f}): "
         "e.g. commutation ripple, an eccentric rotor or a speed-sensor error"
     )
+    return ConditionStructure(channel, f"angle x{h}", z, (), (), (), desc)
 
 
 # ------------------------------------------------------------------ fitting
@@ -762,7 +768,9 @@ def diagnose(
     for eff in candidates:
         key = NONE if eff is None else eff.name
         bar.set_description(f"fitting {key}")
-        model = _Model(eff, ctx, base_full)
+        # Extensions start from the plain model refitted like them (and keep its
+        # values for the circuit they do not touch).
+        model = _Model(eff, ctx, base_full if eff is None else fits[NONE].full)
         fits[key] = _fit(
             model, data, fs, fe, weights, n_particles=n_particles, iterations=iterations,
             rng=np.random.default_rng([seed, len(fits)]),
@@ -830,15 +838,21 @@ def diagnose(
         for j in range(i + 1, len(good)):
             combo = Combination(LIBRARY[good[i]], LIBRARY[good[j]])
             bar.set_description(f"fitting {combo.name}")
-            model = _Model(combo, ctx, base_full)
+            model = _Model(combo, ctx, fits[NONE].full)
             models[combo.name] = model
             fits[combo.name] = _fit(
                 model, data, fs, fe, weights, n_particles=n_particles,
                 iterations=iterations, rng=np.random.default_rng([seed, len(fits)]),
             )  # fmt: skip
-            # A pair must beat the better of its two members on held-out data.
+            # A pair must beat the better of its two members, and the best single
+            # effect, on held-out data.
             member = good[i] if evid[good[i]]["holdout_gain"] >= evid[good[j]]["holdout_gain"] else good[j]
             ev = evidence(combo.name, member)
+            if member != good[0]:
+                ev_best = evidence(combo.name, good[0])
+                if not accepted(ev_best):
+                    ev = ev_best
+                    member = good[0]
             ev_none = evidence(combo.name, NONE)
             ev["vs"] = member
             ev["holdout_gain_vs_plain"] = ev_none["holdout_gain"]
@@ -911,17 +925,26 @@ def diagnose(
     findings = tuple(finding(k) for k in ranked)
 
     description = _describe(verdict, findings, structure, mismatch, floors)
-    if verdict == NONE and (structure or any(f.excess_ratio > 1.5 for f in floors.values())):
+    periodic = [
+        s_ for c, r in (("armature", ra0), ("field", rf0))
+        if (s_ := periodic_structure(rec, r, floors[c], CURRENT_CHANNEL[c])) is not None
+    ]
+    structure = tuple(sorted(structure + tuple(periodic), key=lambda s_: -s_.z))
+    words = [s_.description for s_ in periodic]
+    if verdict == NONE and (
+        structure or words or any(f.excess_ratio > 1.5 for f in floors.values())
+    ):
         verdict = UNEXPLAINED
-        periodic = [
-            describe_periodicity(rec, r, floors[c]) for c, r in (("armature", ra0), ("field", rf0))
-        ]
-        words = [p for p in periodic if p]
         if not words:
             words = [s.description for s in structure[:2]] or [
                 f"residual {max(f.excess_ratio for f in floors.values()):.1f}x the noise floor"
             ]
         description = "a mismatch is located but no candidate removes it: " + "; ".join(words)
+    plain = fits[NONE]
+    plain_refit = {
+        "field": {"R": float(plain.full[dk.I_RF]), "L": float(plain.full[dk.I_LF])},
+        "armature": {"R": float(plain.full[dk.I_RA]), "L": float(plain.full[dk.I_LA]), "K": plain.k},
+    }
     after: dict[str, np.ndarray] = {}
     if findings:
         rf1, ra1, _ = data.residuals(findings[0].full, *whole)
@@ -931,7 +954,7 @@ def diagnose(
         baseline_rms=baseline_rms, floors=floors, mismatch=mismatch, structure=structure,
         findings=findings, context=ctx, baseline_full=base_full, baseline_k=k0,
         residuals_before={"field": rf0, "armature": ra0}, residuals_after=after,
-        conditions=conds,
+        conditions=conds, plain_refit=plain_refit,
     )  # fmt: skip
 
 

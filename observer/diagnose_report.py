@@ -111,9 +111,10 @@ def _plot_residual_time(diag: Diagnosis, rec: Any) -> str:
 def _plot_condition(diag: Diagnosis) -> str | None:
     import matplotlib.pyplot as plt
 
-    if not diag.structure:
+    binned = [s for s in diag.structure if s.condition in diag.conditions]
+    if not binned:
         return None
-    s = diag.structure[0]
+    s = binned[0]
     circuit = "field" if s.channel == "if" else "armature"
     x, words = diag.conditions[s.condition]
     fig, ax = plt.subplots(figsize=(8, 4))
