@@ -212,7 +212,12 @@ class Diagnosis:
                 for m in self.mismatch
             ],
             "structure": [
-                {"channel": s.channel, "condition": s.condition, "z": s.z, "description": s.description}
+                {
+                    "channel": s.channel,
+                    "condition": s.condition,
+                    "z": s.z,
+                    "description": s.description,
+                }
                 for s in self.structure
             ],
             "findings": [f.to_dict() for f in self.findings],
@@ -240,7 +245,9 @@ class _Data:
         #: expected share of the cost is subtracted (errors-in-variables).
         self.va_noise_var = 0.0
 
-    def input_noise_energy(self, full: np.ndarray, starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    def input_noise_energy(
+        self, full: np.ndarray, starts: np.ndarray, stops: np.ndarray
+    ) -> np.ndarray:
         """Expected armature SSE from unit input-voltage noise, per row of ``full`` (A^2/V^2)."""
         full = np.atleast_2d(full)
         a = np.exp(-full[:, dk.I_RA] * self.dt / full[:, dk.I_LA])
@@ -256,7 +263,9 @@ class _Data:
         """Field and armature residual (A) at every sample (NaN outside the segments) and K."""
         rf = np.full(self.n, np.nan)
         ra = np.full(self.n, np.nan)
-        dk.field_residual(full, self.vf, self.i_f, self.loss, starts, stops, self.dt, self._theta, rf)
+        dk.field_residual(
+            full, self.vf, self.i_f, self.loss, starts, stops, self.dt, self._theta, rf
+        )
         _, k = dk.armature_residual(
             full, self.va, self.ia, self.i_f, self.omega, self.loss, starts, stops, self.dt,
             self.brush_width_a, k_fixed, self._theta, ra,
@@ -432,7 +441,9 @@ def locate(
                     f"{ch} residual depends on {words} (z = {z:.0f}); largest at {name} = {hi:.3g}"
                 )
                 structures.append(
-                    ConditionStructure(ch, name, z, tuple(centers), tuple(means), tuple(sigma), desc)
+                    ConditionStructure(
+                        ch, name, z, tuple(centers), tuple(means), tuple(sigma), desc
+                    )
                 )
         # Time windows: mean square against the floor's.
         w = max(50, int(round(0.25 / rec.dt)))
@@ -455,8 +466,11 @@ def locate(
             i0, i1 = k * w, (k1 + 1) * w
             mismatches.append(
                 Mismatch(
-                    float(t[i0]), float(t[min(i1, t.size - 1)]), ch,
-                    _describe_window(conds, i0, i1, circuit), float(zw[k : k1 + 1].max()),
+                    float(t[i0]),
+                    float(t[min(i1, t.size - 1)]),
+                    ch,
+                    _describe_window(conds, i0, i1, circuit),
+                    float(zw[k : k1 + 1].max()),
                 )  # fmt: skip
             )
             k = k1 + 1
@@ -465,7 +479,9 @@ def locate(
     return tuple(mismatches[:20]), tuple(structures)
 
 
-def _describe_window(conds: dict[str, tuple[np.ndarray, str]], i0: int, i1: int, circuit: str) -> str:
+def _describe_window(
+    conds: dict[str, tuple[np.ndarray, str]], i0: int, i1: int, circuit: str
+) -> str:
     words = []
     for name, (x, text) in conds.items():
         if name == "time" or (circuit == "field" and name in ("|ia|", "sign(ia)", "|dia/dt|")):
@@ -525,7 +541,14 @@ class _Fit:
 class _Model:
     """The PSO coordinates of one candidate: base parameters in log10, then the effect's."""
 
-    def __init__(self, effect: Effect | None, ctx: DataContext, base_full: np.ndarray) -> None:
+    def __init__(
+        self,
+        effect: Effect | None,
+        ctx: DataContext,
+        base_full: np.ndarray,
+        *,
+        warm_effect: bool = False,
+    ) -> None:
         self.effect = effect
         self.circuits = effect.circuits if effect is not None else ("field", "armature")
         self.params: tuple[Parameter, ...] = effect.parameters(ctx) if effect is not None else ()
@@ -544,14 +567,18 @@ class _Model:
             hi.append(v + 0.2)
             x0.append(v)
         for p in self.params:
+            # Warm: start the effect's parameters where base_full has them (a
+            # pair starts from its members' fits); else at the neutral value.
+            start = base_full[dk.FULL_PARAMS.index(p.name)] if warm_effect else p.neutral
+            start = min(max(start, p.low), p.high)
             if p.log:
                 lo.append(math.log10(p.low))
                 hi.append(math.log10(p.high))
-                x0.append(math.log10(p.neutral))
+                x0.append(math.log10(start))
             else:
                 lo.append(p.low)
                 hi.append(p.high)
-                x0.append(p.neutral)
+                x0.append(start)
         self.lower = np.array(lo)
         self.upper = np.array(hi)
         self.x0 = np.array(x0)
@@ -615,7 +642,9 @@ def _fit(
     compensate = "armature" in scale and data.va_noise_var > 0
     # Errors-in-variables compensation in least-squares form: the subtracted
     # expected noise share becomes one more residual sqrt(C - s2*E(theta)).
-    c_comp = 2.0 * data.va_noise_var * float(data.input_noise_energy(model.to_full(x), starts, stops)[0])
+    c_comp = (
+        2.0 * data.va_noise_var * float(data.input_noise_energy(model.to_full(x), starts, stops)[0])
+    )
 
     def residual(theta: np.ndarray) -> np.ndarray:
         full = model.to_full(theta)[0]
@@ -658,7 +687,9 @@ def _segments(n: int, dt: float, max_fit_samples: int) -> tuple[np.ndarray, ...]
     n_fit = int(np.sum(stops[fit] - starts[fit]))
     if n_fit > max_fit_samples:
         idx = np.flatnonzero(fit)
-        keep = idx[np.round(np.linspace(0, idx.size - 1, max(2, max_fit_samples // seg_len))).astype(int)]
+        keep = idx[
+            np.round(np.linspace(0, idx.size - 1, max(2, max_fit_samples // seg_len))).astype(int)
+        ]
         fit[:] = False
         fit[np.unique(keep)] = True
     hold = ~fit
@@ -738,7 +769,9 @@ def diagnose(
         max_iterations=baseline_iterations, rng=rng, compensate_input_noise=False,
     )  # fmt: skip
     base_full = _base_full(field_est, arm_est)
-    ctx = context_from(rec, field_est.resistance_ohm, field_est.inductance_h, arm_est.resistance_ohm)
+    ctx = context_from(
+        rec, field_est.resistance_ohm, field_est.inductance_h, arm_est.resistance_ohm
+    )
     data = _Data(rec, base_full, ctx)
     whole = (np.array([0]), np.array([data.n]))
     rf0, ra0, k0 = data.residuals(base_full, *whole)
@@ -750,7 +783,9 @@ def diagnose(
         a, b = math.exp(-est.resistance_ohm * dt / est.inductance_h), 0.0
         b = (1 - a) / est.resistance_ohm
         floors[circuit] = noise_floor(circuit, r, a, b, v)
-    baseline_rms = {c: float(np.sqrt(np.mean(r**2))) for c, r in (("field", rf0), ("armature", ra0))}
+    baseline_rms = {
+        c: float(np.sqrt(np.mean(r**2))) for c, r in (("field", rf0), ("armature", ra0))
+    }
     conds = conditions(rec)
     mismatch, structure = locate(rec, {"field": rf0, "armature": ra0}, floors, conds)
 
@@ -810,7 +845,9 @@ def diagnose(
         lr = 0.0
         for c in circuits:
             n_h = float(np.sum(he - hs)) / max(floors[c].tau_int, 1.0)
-            lr += n_h * math.log(float(np.sum(held[ref][c])) / max(float(np.sum(held[key][c])), 1e-300))
+            lr += n_h * math.log(
+                float(np.sum(held[ref][c])) / max(float(np.sum(held[key][c])), 1e-300)
+            )
         return {
             "holdout_gain": float(np.sum(d) / base_sum),
             "holdout_lr": lr,
@@ -838,7 +875,11 @@ def diagnose(
         for j in range(i + 1, len(good)):
             combo = Combination(LIBRARY[good[i]], LIBRARY[good[j]])
             bar.set_description(f"fitting {combo.name}")
-            model = _Model(combo, ctx, fits[NONE].full)
+            start = fits[good[i]].full.copy()
+            for q in LIBRARY[good[j]].parameters(ctx):
+                k_ = dk.FULL_PARAMS.index(q.name)
+                start[k_] = fits[good[j]].full[k_]
+            model = _Model(combo, ctx, start, warm_effect=True)
             models[combo.name] = model
             fits[combo.name] = _fit(
                 model, data, fs, fe, weights, n_particles=n_particles,
@@ -846,7 +887,11 @@ def diagnose(
             )  # fmt: skip
             # A pair must beat the better of its two members, and the best single
             # effect, on held-out data.
-            member = good[i] if evid[good[i]]["holdout_gain"] >= evid[good[j]]["holdout_gain"] else good[j]
+            member = (
+                good[i]
+                if evid[good[i]]["holdout_gain"] >= evid[good[j]]["holdout_gain"]
+                else good[j]
+            )
             ev = evidence(combo.name, member)
             if member != good[0]:
                 ev_best = evidence(combo.name, good[0])
@@ -897,7 +942,8 @@ def diagnose(
         }
         ev["structure_after"] = {
             f"{s.channel}:{s.condition}": binned_structure(
-                rf if s.channel == "if" else ra, conds[s.condition][0],
+                rf if s.channel == "if" else ra,
+                conds[s.condition][0],
                 floors["field" if s.channel == "if" else "armature"],
             )[0]
             for s in structure
@@ -926,7 +972,8 @@ def diagnose(
 
     description = _describe(verdict, findings, structure, mismatch, floors)
     periodic = [
-        s_ for c, r in (("armature", ra0), ("field", rf0))
+        s_
+        for c, r in (("armature", ra0), ("field", rf0))
         if (s_ := periodic_structure(rec, r, floors[c], CURRENT_CHANNEL[c])) is not None
     ]
     structure = tuple(sorted(structure + tuple(periodic), key=lambda s_: -s_.z))
@@ -943,19 +990,33 @@ def diagnose(
     plain = fits[NONE]
     plain_refit = {
         "field": {"R": float(plain.full[dk.I_RF]), "L": float(plain.full[dk.I_LF])},
-        "armature": {"R": float(plain.full[dk.I_RA]), "L": float(plain.full[dk.I_LA]), "K": plain.k},
+        "armature": {
+            "R": float(plain.full[dk.I_RA]),
+            "L": float(plain.full[dk.I_LA]),
+            "K": plain.k,
+        },
     }
     after: dict[str, np.ndarray] = {}
     if findings:
         rf1, ra1, _ = data.residuals(findings[0].full, *whole)
         after = {"field": rf1, "armature": ra1}
     return Diagnosis(
-        verdict=verdict, description=description, baseline={"field": field_est, "armature": arm_est},
-        baseline_rms=baseline_rms, floors=floors, mismatch=mismatch, structure=structure,
-        findings=findings, context=ctx, baseline_full=base_full, baseline_k=k0,
-        residuals_before={"field": rf0, "armature": ra0}, residuals_after=after,
-        conditions=conds, plain_refit=plain_refit,
-    )  # fmt: skip
+        verdict=verdict,
+        description=description,
+        baseline={"field": field_est, "armature": arm_est},
+        baseline_rms=baseline_rms,
+        floors=floors,
+        mismatch=mismatch,
+        structure=structure,
+        findings=findings,
+        context=ctx,
+        baseline_full=base_full,
+        baseline_k=k0,
+        residuals_before={"field": rf0, "armature": ra0},
+        residuals_after=after,
+        conditions=conds,
+        plain_refit=plain_refit,
+    )
 
 
 def _main_circuit(

@@ -31,7 +31,11 @@ def _png(fig: Any) -> str:
 
 
 def _img(data: str, alt: str) -> str:
-    return f'<figure><img alt="{html.escape(alt)}" src="data:image/png;base64,{data}"><figcaption>{html.escape(alt)}</figcaption></figure>'
+    text = html.escape(alt)
+    return (
+        f'<figure><img alt="{text}" src="data:image/png;base64,{data}">'
+        f"<figcaption>{text}</figcaption></figure>"
+    )
 
 
 def _focus_circuit(diag: Diagnosis) -> str:
@@ -173,12 +177,12 @@ def _plot_extension(diag: Diagnosis, rec: Any, finding: Finding) -> str | None:
             r, ell, k2, te = p[dk.I_RF], p[dk.I_LF], p[dk.I_K2], p[dk.I_TE]
             ax.plot(t, 1 - np.exp(-t * r / ell), "k:", label="plain RL")
             step = np.zeros_like(t)
-            i = j = 0.0
+            cur = eddy = 0.0
             h = t[1] - t[0]
+            p00, p01, p10, p11, g0, g1 = dk._eddy_step(r, ell, k2, te, h)
             for k in range(1, t.size):
-                p00, p01, p10, p11, g0, g1 = dk._eddy_step(r, ell, k2, te, h)
-                i, j = p00 * i + p01 * j + g0 * r, p10 * i + p11 * j + g1 * r
-                step[k] = i
+                cur, eddy = p00 * cur + p01 * eddy + g0 * r, p10 * cur + p11 * eddy + g1 * r
+                step[k] = cur
             ax.plot(t, step, "C0", label=f"with eddy path (k2={k2:.2f}, tau_e={te * 1e3:.1f} ms)")
             ax.set_xlabel("time (s)")
             ax.set_ylabel("field current step response (p.u.)")
@@ -233,17 +237,27 @@ def render_html(diag: Diagnosis, rec: Any, *, title: str = "dcobserver diagnosis
              _g(diag.baseline_rms[c]), _g(math.sqrt(fl.variance_a2)), f"{fl.excess_ratio:.2f}"]
         )  # fmt: skip
     parts.append(
-        _table(rows, ["circuit", "R (ohm)", "L (H)", "K (H)", "rms (A)", "noise floor (A)", "rms/floor"])
+        _table(
+            rows,
+            ["circuit", "R (ohm)", "L (H)", "K (H)", "rms (A)", "noise floor (A)", "rms/floor"],
+        )
     )
     parts.append("<h2>Located mismatch</h2>")
     if diag.mismatch or diag.structure:
         parts.append(
             _table(
-                [[_g(m.t0), _g(m.t1), m.channel, m.conditions, f"{m.z:.0f}"] for m in diag.mismatch],
+                [
+                    [_g(m.t0), _g(m.t1), m.channel, m.conditions, f"{m.z:.0f}"]
+                    for m in diag.mismatch
+                ],
                 ["t0 (s)", "t1 (s)", "channel", "conditions", "z"],
             )
         )
-        parts.append("<ul>" + "".join(f"<li>{html.escape(s.description)}</li>" for s in diag.structure) + "</ul>")
+        parts.append(
+            "<ul>"
+            + "".join(f"<li>{html.escape(s.description)}</li>" for s in diag.structure)
+            + "</ul>"
+        )
     else:
         parts.append("<p>No structure above the noise floor.</p>")
     parts.append("<h2>Candidates (best first)</h2>")
@@ -259,8 +273,15 @@ def render_html(diag: Diagnosis, rec: Any, *, title: str = "dcobserver diagnosis
     parts.append(
         _table(
             rows,
-            ["effect", "earns it", "parameters", "rms before -> after (A)", "held-out gain",
-             "held-out LR", "IC gain"],
+            [
+                "effect",
+                "earns it",
+                "parameters",
+                "rms before -> after (A)",
+                "held-out gain",
+                "held-out LR",
+                "IC gain",
+            ],
         )  # fmt: skip
     )
     if diag.findings:
@@ -270,13 +291,23 @@ def render_html(diag: Diagnosis, rec: Any, *, title: str = "dcobserver diagnosis
         corr = best.corrected
         parts.append(
             _table(
-                [[c, _g(diag.baseline[c].resistance_ohm), _g(corr[c]["R"]),
-                  _g(diag.baseline[c].inductance_h), _g(corr[c]["L"])] for c in ("field", "armature")],
+                [
+                    [
+                        c,
+                        _g(diag.baseline[c].resistance_ohm),
+                        _g(corr[c]["R"]),
+                        _g(diag.baseline[c].inductance_h),
+                        _g(corr[c]["L"]),
+                    ]
+                    for c in ("field", "armature")
+                ],
                 ["circuit", "R plain", "R corrected", "L plain", "L corrected"],
             )  # fmt: skip
         )
     parts.append("<h2>Plots</h2>")
-    parts.append(_img(_plot_measured(diag, rec, circuit), "measured vs simulated, before and after"))
+    parts.append(
+        _img(_plot_measured(diag, rec, circuit), "measured vs simulated, before and after")
+    )
     parts.append(_img(_plot_residual_time(diag, rec), "residual over time with located segments"))
     cond = _plot_condition(diag)
     if cond:

@@ -114,7 +114,9 @@ class Combination(Effect):
         self.explanation = "; ".join(e.explanation for e in flat)
         self.equation = "; ".join(e.equation for e in flat)
         self.signals = tuple(dict.fromkeys(s for e in flat for s in e.signals))
-        self.circuits = tuple(c for c in ("field", "armature") if any(c in e.circuits for e in flat))
+        self.circuits = tuple(
+            c for c in ("field", "armature") if any(c in e.circuits for e in flat)
+        )
 
     @property
     def members(self) -> tuple[Effect, ...]:
@@ -174,8 +176,12 @@ class ThermalDrift(Effect):
         return (
             Parameter("thermal_rise_per_w", "1/W", 0.0, 1.0 / max(ctx.mean_loss_w, 1e-12), 0.0),
             Parameter(
-                "thermal_time_constant_s", "s", 0.2 * ctx.duration_s, 50.0 * ctx.duration_s,
-                2.0 * ctx.duration_s, log=True,
+                "thermal_time_constant_s",
+                "s",
+                0.2 * ctx.duration_s,
+                50.0 * ctx.duration_s,
+                2.0 * ctx.duration_s,
+                log=True,
             ),  # fmt: skip
         )
 
@@ -204,7 +210,9 @@ class ArmatureReaction(Effect):
     circuits = ("armature",)
 
     def parameters(self, ctx: DataContext) -> tuple[Parameter, ...]:
-        return (Parameter("reaction_per_a", "1/A", -0.05 / ctx.ia_peak_a, 0.3 / ctx.ia_peak_a, 0.0),)
+        return (
+            Parameter("reaction_per_a", "1/A", -0.05 / ctx.ia_peak_a, 0.3 / ctx.ia_peak_a, 0.0),
+        )
 
     def magnitude(self, values: dict[str, float], ctx: DataContext) -> dict[str, float]:
         return {"flux_loss_at_peak_ia": values["reaction_per_a"] * ctx.ia_peak_a}
@@ -275,9 +283,7 @@ LIBRARY: dict[str, Effect] = {
 }
 
 
-def context_from(
-    rec: Any, field_r: float, field_l: float, arm_r: float
-) -> DataContext:
+def context_from(rec: Any, field_r: float, field_l: float, arm_r: float) -> DataContext:
     """Bounds context of a recording with the baseline's resistances."""
     ia, i_f = rec["ia"], rec["if"]
     loss = arm_r * ia * ia + field_r * i_f * i_f

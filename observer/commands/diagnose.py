@@ -6,7 +6,6 @@ import argparse
 import json
 import logging
 import math
-import sys
 from typing import Any
 
 log = logging.getLogger(__name__)
@@ -55,7 +54,9 @@ def main(args: argparse.Namespace) -> int:
     if args.report:
         from observer.diagnose_report import render_html
 
-        _write(args.report, render_html(diag, rec, title=f"dcobserver diagnosis of {args.recording}"))
+        _write(
+            args.report, render_html(diag, rec, title=f"dcobserver diagnosis of {args.recording}")
+        )
     print(f"verdict: {diag.verdict}")
     print(diag.description)
     for m in diag.mismatch[:5]:

@@ -84,7 +84,10 @@ def test_concealed_effect_is_named_measured_and_corrected(effect):
     truth = _truth(rec)
     base = _flat(
         {
-            "field": {"R": diag.baseline["field"].resistance_ohm, "L": diag.baseline["field"].inductance_h},
+            "field": {
+                "R": diag.baseline["field"].resistance_ohm,
+                "L": diag.baseline["field"].inductance_h,
+            },
             "armature": {
                 "R": diag.baseline["armature"].resistance_ohm,
                 "L": diag.baseline["armature"].inductance_h,
