@@ -43,7 +43,12 @@ import numpy as np
 
 from observer import diagnose_kernels as dk
 from observer.effects import LIBRARY, Combination, DataContext, Effect, Parameter, context_from
-from observer.estimate import CircuitEstimate, estimate_armature, estimate_field
+from observer.estimate import (
+    CircuitEstimate,
+    EstimationError,
+    estimate_armature,
+    estimate_field,
+)
 from observer.pso import ParticleSwarm
 
 log = logging.getLogger(__name__)
@@ -683,6 +688,11 @@ def _segments(n: int, dt: float, max_fit_samples: int) -> tuple[np.ndarray, ...]
     starts = np.arange(0, n - seg_len // 2, seg_len)
     stops = np.minimum(starts + seg_len, n)
     stops[-1] = n
+    if starts.size < 4:
+        raise EstimationError(
+            f"recording too short for a diagnosis: {duration:.3g} s, need at least "
+            f"{4 * seg_len * dt:.3g} s (four segments to fit and hold out)"
+        )
     fit = np.arange(starts.size) % 2 == 0
     n_fit = int(np.sum(stops[fit] - starts[fit]))
     if n_fit > max_fit_samples:

@@ -114,3 +114,11 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
     assert len(res.stderr.strip().splitlines()) == 1
     res = _cli("diagnose", str(field_only), "--effects", "nonsense")
     assert res.returncode == 2 and "nonsense" in res.stderr
+
+
+def test_too_short_a_recording_is_refused_in_one_line(tmp_path):
+    short = tmp_path / "short.csv"
+    assert _cli("simulate", str(short), "--duration", "0.5").returncode == 0
+    res = _cli("diagnose", str(short))
+    assert res.returncode == 2 and "too short" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
