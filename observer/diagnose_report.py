@@ -75,7 +75,8 @@ def _plot_measured(diag: Diagnosis, rec: Any, circuit: str) -> str:
     axes[0].plot(t, before, lw=1.0, color="C3", label="plain model")
     if circuit in diag.residuals_after:
         after = meas - diag.residuals_after[circuit][sl]
-        name = diag.findings[0].effect
+        top = diag.findings[0]
+        name = top.effect if top.accepted else f"{top.effect} (rejected)"
         axes[0].plot(t, after, lw=1.0, color="C0", ls="--", label=f"with {name}")
         axes[1].plot(t, diag.residuals_after[circuit][sl], lw=0.6, color="C0", label=f"with {name}")
     axes[1].plot(t, diag.residuals_before[circuit][sl], lw=0.6, color="C3", label="plain model")
