@@ -200,3 +200,22 @@ def test_library_terms_declare_themselves_and_compose():
     assert names == ["brush_drop_v", "thermal_rise_per_w", "thermal_time_constant_s"]
     for p in combo.parameters(diag.context):
         assert p.low <= p.neutral <= p.high and p.unit
+
+
+def test_two_effects_at_once_are_named_as_a_pair():
+    rec, diag = _diagnosed(P12, {"brush_drop": 0.3, "thermal_drift": 0.06}, 1)
+    assert diag.verdict == "brush_drop+thermal_drift"
+    best = diag.best
+    assert best is not None and best.accepted
+    assert best.params["brush_drop_v"] == pytest.approx(0.3, rel=0.15)
+    # The pair beats its better member on held-out data, not just the plain model.
+    assert best.evidence["vs"] in ("brush_drop", "thermal_drift")
+    singles = {f.effect: f for f in diag.findings if "+" not in f.effect}
+    pair_rms = best.evidence["rms_after"]
+    for name in ("brush_drop", "thermal_drift"):
+        single_rms = singles[name].evidence["rms_after"]
+        assert pair_rms["armature"] <= single_rms["armature"] * 1.001
+        assert pair_rms["field"] <= single_rms["field"] * 1.001
+    truth = _truth(rec)
+    base_err = abs(diag.baseline["armature"].resistance_ohm / truth["Ra"] - 1)
+    assert abs(best.corrected["armature"]["R"] / truth["Ra"] - 1) < base_err / 3
