@@ -67,6 +67,9 @@ STRUCTURE_Z = 6.0
 #: structure is reported but not enough: the plain fit's own errors-in-variables bias
 #: leaves a faint dependence on current transients in clean recordings (z up to ~7).
 UNEXPLAINED_Z = 10.0
+#: ... and at least this large against the floor's rms: in a long recording a tiny,
+#: harmless systematic error becomes significant; it must also matter.
+UNEXPLAINED_SIZE = 0.05
 
 CURRENT_CHANNEL = {"field": "if", "armature": "ia"}
 
@@ -129,6 +132,8 @@ class ConditionStructure:
     means: tuple[float, ...]
     sigma: tuple[float, ...]
     description: str
+    #: Largest bin offset (or periodic amplitude) relative to the floor's rms: the effect size.
+    size: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -224,6 +229,7 @@ class Diagnosis:
                     "channel": s.channel,
                     "condition": s.condition,
                     "z": s.z,
+                    "size": s.size,
                     "description": s.description,
                 }
                 for s in self.structure
@@ -366,20 +372,24 @@ def _leave_centre_out_mean(x: np.ndarray, half_width: int = 5) -> np.ndarray:
     return (c[hi] - c[lo] - x) / np.maximum(hi - lo - 1, 1)
 
 
-def conditions(rec: Any) -> dict[str, tuple[np.ndarray, str]]:
+def conditions(rec: Any, armature_tau_s: float) -> dict[str, tuple[np.ndarray, str]]:
     """Operating conditions to bin residuals against: ``{name: (values, words)}``.
 
-    Currents are local means of the measurement *without* the sample itself:
-    a residual binned against the noisy current it was computed from would
-    find that sample's noise (a narrow band of a noisy value selects its
-    noise), and the model's simulated current carries the input noise the
-    residual carries too. The neighbours' mean shares neither.
+    Currents and speed are local means of the measurements *without the sample
+    itself*, over windows long against the armature time constant: a residual
+    binned against the noisy signal it was computed from would find that
+    signal's noise (a narrow band of a noisy value selects its noise), and the
+    residual remembers the noise of the last few time constants (through the
+    model's response, and through the drive's current loop). Armature-current
+    conditions use +-5 time constants, field current and speed +-25.
     """
     dt = rec.dt
     t = np.asarray(rec.t) - rec.t[0]
-    i_f = _leave_centre_out_mean(np.asarray(rec["if"]))
-    ia = _leave_centre_out_mean(np.asarray(rec["ia"]))
-    omega = _leave_centre_out_mean(np.asarray(rec["omega"]))
+    fast = max(5, int(round(5 * armature_tau_s / dt)))
+    slow = max(5 * fast, int(round(0.1 / dt)))
+    i_f = _leave_centre_out_mean(np.asarray(rec["if"]), slow)
+    ia = _leave_centre_out_mean(np.asarray(rec["ia"]), fast)
+    omega = _leave_centre_out_mean(np.asarray(rec["omega"]), slow)
     return {
         "if": (i_f, "field current"),
         "|ia|": (np.abs(ia), "armature current magnitude"),
@@ -448,9 +458,12 @@ def locate(
                 desc = (
                     f"{ch} residual depends on {words} (z = {z:.0f}); largest at {name} = {hi:.3g}"
                 )
+                w_ = 1 / sigma**2
+                offset = np.abs(means - np.sum(w_ * means) / np.sum(w_))
+                size = float(offset.max()) / math.sqrt(fl.variance_a2)
                 structures.append(
                     ConditionStructure(
-                        ch, name, z, tuple(centers), tuple(means), tuple(sigma), desc
+                        ch, name, z, tuple(centers), tuple(means), tuple(sigma), desc, size
                     )
                 )
         # Time windows: mean square against the floor's.
@@ -532,7 +545,9 @@ def periodic_structure(
         f"{channel} residual periodic at {h}x shaft speed (amplitude {amp:.3g} A, z = {z:.0f}): "
         "e.g. commutation ripple, an eccentric rotor or a speed-sensor error"
     )
-    return ConditionStructure(channel, f"angle x{h}", z, (), (), (), desc)
+    return ConditionStructure(
+        channel, f"angle x{h}", z, (), (), (), desc, amp / math.sqrt(floor.variance_a2)
+    )
 
 
 # ------------------------------------------------------------------ fitting
@@ -799,7 +814,7 @@ def diagnose(
     baseline_rms = {
         c: float(np.sqrt(np.mean(r**2))) for c, r in (("field", rf0), ("armature", ra0))
     }
-    conds = conditions(rec)
+    conds = conditions(rec, arm_est.inductance_h / arm_est.resistance_ohm)
     mismatch, structure = locate(rec, {"field": rf0, "armature": ra0}, floors, conds)
 
     weights = {c: 1.0 / floors[c].variance_a2 for c in floors}
@@ -988,7 +1003,7 @@ def diagnose(
     ]
     structure = tuple(sorted(structure + tuple(periodic), key=lambda s_: -s_.z))
     words = [s_.description for s_ in periodic]
-    strong = [s_ for s_ in structure if s_.z >= UNEXPLAINED_Z]
+    strong = [s_ for s_ in structure if s_.z >= UNEXPLAINED_Z and s_.size >= UNEXPLAINED_SIZE]
     if verdict == NONE and (
         strong or mismatch or words or any(f.excess_ratio > 1.5 for f in floors.values())
     ):
