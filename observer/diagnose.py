@@ -573,6 +573,7 @@ class _Model:
         warm_effect: bool = False,
     ) -> None:
         self.effect = effect
+        self.ctx = ctx
         self.circuits = effect.circuits if effect is not None else ("field", "armature")
         self.params: tuple[Parameter, ...] = effect.parameters(ctx) if effect is not None else ()
         self.base_full = base_full
@@ -683,7 +684,7 @@ def _fit(
         return np.concatenate(parts)
 
     if polish:
-        x, r, _ = _levenberg_marquardt(residual, x.copy(), max_iterations=15)
+        x, r, _ = _levenberg_marquardt(residual, x.copy(), max_iterations=40)
         x = np.clip(x, model.lower, model.upper)
     full = model.to_full(x)[0]
     rf, ra, k = data.residuals(full, starts, stops)
@@ -934,7 +935,7 @@ def diagnose(
     verdict = NONE
     if good:
         verdict = good[0]
-        best_pairs = [p for p in pairs if accepted(evid[p])]
+        best_pairs = [p for p in pairs if accepted(evid[p]) and not _degenerate(models[p], fits[p])]
         if best_pairs:
             verdict = max(best_pairs, key=lambda p: evid[p]["holdout_gain_vs_plain"])
 
@@ -1043,6 +1044,27 @@ def diagnose(
         conditions=conds,
         plain_refit=plain_refit,
     )
+
+
+def _degenerate(model: _Model, fit: _Fit) -> bool:
+    """Whether a member of a pair sits at its neutral value (the pair is then a single effect).
+
+    Only magnitude parameters count (time constants, searched on a log scale,
+    shape an effect but do not make it present).
+    """
+    effect = model.effect
+    if effect is None or len(effect.members) < 2:
+        return False
+    for member in effect.members:
+        names = {q.name for q in member.parameters(model.ctx)}
+        moved = False
+        for p in model.params:
+            if p.name in names and not p.log:
+                value = fit.full[dk.FULL_PARAMS.index(p.name)]
+                moved |= bool(abs(value - p.neutral) > 0.01 * (p.high - p.low))
+        if not moved:
+            return True
+    return False
 
 
 def _main_circuit(
