@@ -35,7 +35,7 @@ from __future__ import annotations
 import logging
 import math
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -1108,7 +1108,3 @@ def _progress(total: int, show: bool) -> Any:
     from tqdm import tqdm
 
     return tqdm(total=total, file=sys.stderr, unit="model", leave=False)
-
-
-#: For type checkers: the signature of a swarm cost.
-SwarmCost = Callable[[np.ndarray], np.ndarray]
