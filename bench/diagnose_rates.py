@@ -105,7 +105,7 @@ def _key(job: dict[str, Any]) -> tuple[Any, ...]:
 
 def table(results: list[dict[str, Any]]) -> str:
     lines = [
-        "| effect | magnitude | runs | detected | named otherwise | rms before -> after "
+        "| effect | magnitude | runs | detected | other verdict (not none) | rms before -> after "
         "(median) | held-out gain (median) | magnitude error (median) |",
         "|---|---|---|---|---|---|---|---|",
     ]
