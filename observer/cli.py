@@ -39,6 +39,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "observer.commands.fake_drive",
         "serve a simulated drive over CAN, serial or Modbus (no hardware needed)",
     ),
+    "diagnose": (
+        "observer.commands.diagnose",
+        "locate model mismatch, name the missing physics, fit it and show the improvement",
+    ),
 }
 
 EXIT_USAGE = 2
@@ -49,10 +53,18 @@ class UserError(Exception):
 
 
 def _user_error_types() -> tuple[type[BaseException], ...]:
+    # Under ``python -m observer.cli`` this module is ``__main__`` and the
+    # commands raise ``observer.cli.UserError``, a different class object.
+    from observer.cli import UserError as imported_user_error
     from observer.config import ConfigError
     from observer.estimate import EstimationError
 
-    types: list[type[BaseException]] = [UserError, EstimationError, ConfigError]
+    types: list[type[BaseException]] = [
+        UserError,
+        imported_user_error,
+        EstimationError,
+        ConfigError,
+    ]
     try:
         from observer.recording import RecordingError
 

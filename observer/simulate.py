@@ -13,7 +13,9 @@ feed-forward, run once per sample on the noisy measurements.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -120,6 +122,7 @@ def simulate(
     sample_rate_hz: float = 2000.0,
     noise: NoiseLevels | float = 0.002,
     seed: int | None = 0,
+    effects: Mapping[str, float] | None = None,
 ) -> Recording:
     """Simulate a recording of ``motor`` in rope-shovel-like operation.
 
@@ -135,12 +138,17 @@ def simulate(
         Sensor noise per channel, or one fraction of each channel's rated value.
     seed : int or None
         Seed of the duty-cycle draws and the noise; same seed, same recording.
+    effects : mapping of str to float, optional
+        Physics the plain model leaves out, by name with a magnitude (see
+        :mod:`observer.effects_sim`), e.g. ``{"brush_drop": 1.0}``. Without it
+        the plant is the plain model of :func:`observer.kernels.simulate_drive`.
 
     Returns
     -------
     Recording
         Channels ``va, ia, vf, if, omega``; its metadata carries the true motor
-        parameters, the noise levels and the seed.
+        parameters, the noise levels, the seed and (with ``effects``) the
+        effects' relative and physical magnitudes under ``"effects"``.
     """
     if not duration_s > 0:
         raise ValueError(f"duration_s must be > 0, got {duration_s}")
@@ -168,15 +176,35 @@ def simulate(
     )
     # Start at rest with the field established, as a drive does after pre-excitation.
     state0 = np.array([field[0] / motor.field_resistance_ohm, 0.0, 0.0])
-    _, measured = kernels.simulate_drive(
-        dt, n_sub, motor_array, controller_gains(motor, dt),
-        speed, load, field, noise_samples, state0,
-    )  # fmt: skip
+    fx_meta = None
+    if effects:
+        from observer import effects_sim
+
+        fx = effects_sim.plant_effects(motor, effects, dt)
+        if fx.eddy_coupling > 0:
+            n_sub = max(n_sub, math.ceil(10 * dt / fx.eddy_time_constant_s))
+        true = effects_sim.simulate_drive_effects(
+            dt, n_sub, motor_array, controller_gains(motor, dt),
+            speed, load, field, noise_samples, state0, fx.plant_array(),
+        )  # fmt: skip
+        measured = true[:, :5] + noise_samples
+        delay = fx.current_delay_s / dt
+        if delay:
+            for c in (1, 3):
+                measured[:, c] = effects_sim.delayed(true[:, c], delay) + noise_samples[:, c]
+        measured[:, 1] += fx.ia_offset_a
+        measured[:, 3] += fx.if_offset_a
+        fx_meta = effects_sim.effects_metadata(effects, fx)
+    else:
+        _, measured = kernels.simulate_drive(
+            dt, n_sub, motor_array, controller_gains(motor, dt),
+            speed, load, field, noise_samples, state0,
+        )  # fmt: skip
     t = np.arange(n) * dt
     signals = {
         name: measured[:, c].copy() for c, name in enumerate(("va", "ia", "vf", "if", "omega"))
     }
-    metadata = {
+    metadata: dict[str, Any] = {
         "generator": "dcobserver simulate",
         "motor": motor.to_dict(),
         "noise": {
@@ -189,4 +217,6 @@ def simulate(
         "seed": seed,
         "sample_rate_hz": sample_rate_hz,
     }
+    if fx_meta is not None:
+        metadata["effects"] = fx_meta
     return Recording(t=t, signals=signals, metadata=metadata)

@@ -24,6 +24,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--circuit", choices=("both", "field", "armature"), default="both",
         help="write only the channels one circuit needs",
     )  # fmt: skip
+    parser.add_argument(
+        "--effect", default=None, metavar="NAME[=MAG][,NAME...]",
+        help="physics the plain model leaves out: field_saturation (flux deficit at rated "
+        "field current, default 0.08), thermal_drift (resistance rise at rated loss, 0.3), "
+        "brush_drop (V, 1.0), armature_reaction (flux loss at rated current, 0.05), "
+        "eddy_currents (coupling k^2, 0.2), sensor_offset (ia offset / rated current, 0.01), "
+        "sampling_skew (current delay in sample periods, 0.5)",
+    )  # fmt: skip
 
 
 def main(args: argparse.Namespace) -> int:
@@ -35,9 +43,21 @@ def main(args: argparse.Namespace) -> int:
     if not args.duration > 0 or not args.rate > 0 or args.noise < 0:
         raise UserError("--duration and --rate must be > 0 and --noise >= 0")
     motor = MOTORS[args.motor]
-    rec = simulate(
-        motor, duration_s=args.duration, sample_rate_hz=args.rate, noise=args.noise, seed=args.seed
-    )
+    effects = None
+    if args.effect is not None:
+        from observer.effects_sim import parse_effects
+
+        try:
+            effects = parse_effects(args.effect)
+        except ValueError as exc:
+            raise UserError(f"--effect: {exc}") from None
+    try:
+        rec = simulate(
+            motor, duration_s=args.duration, sample_rate_hz=args.rate, noise=args.noise,
+            seed=args.seed, effects=effects,
+        )  # fmt: skip
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     if args.circuit == "field":
         rec = rec.select("vf", "if")
     elif args.circuit == "armature":

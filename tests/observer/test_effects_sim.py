@@ -1,0 +1,68 @@
+"""Simulated effects: magnitudes, metadata, and the physics each one adds."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from observer.effects_sim import DEFAULT_MAGNITUDES, delayed, parse_effects, plant_effects
+from observer.motor import P12
+from observer.simulate import simulate
+
+
+def test_parse_effects():
+    assert parse_effects("brush_drop") == {"brush_drop": DEFAULT_MAGNITUDES["brush_drop"]}
+    assert parse_effects("brush_drop=1.5, thermal_drift=0.2") == {
+        "brush_drop": 1.5,
+        "thermal_drift": 0.2,
+    }
+    with pytest.raises(ValueError, match="unknown effect 'x'"):
+        parse_effects("x")
+    with pytest.raises(ValueError, match="not a number"):
+        parse_effects("brush_drop=a")
+    with pytest.raises(ValueError, match=">= 0"):
+        parse_effects("brush_drop=-1")
+
+
+def test_plain_simulation_is_unchanged_and_effects_are_recorded():
+    plain = simulate(P12, duration_s=1.0, seed=3)
+    again = simulate(P12, duration_s=1.0, seed=3, effects=None)
+    np.testing.assert_array_equal(plain["ia"], again["ia"])
+    assert "effects" not in plain.metadata
+    # A zero-magnitude effect goes through the effects plant: same physics.
+    zero = simulate(P12, duration_s=1.0, seed=3, effects={"brush_drop": 0.0})
+    np.testing.assert_allclose(zero["ia"], plain["ia"], atol=1e-6 * P12.rated_armature_current_a)
+    fx = simulate(P12, duration_s=1.0, seed=3, effects={"sensor_offset": 0.01})
+    assert fx.metadata["effects"]["physical"]["ia_offset_a"] == pytest.approx(0.03)
+
+
+def test_sensor_effects_act_on_the_recorded_signals_only():
+    clean = simulate(P12, duration_s=2.0, seed=4, noise=0.0)
+    offset = simulate(P12, duration_s=2.0, seed=4, noise=0.0, effects={"sensor_offset": 0.01})
+    np.testing.assert_allclose(offset["ia"] - clean["ia"], 0.03, atol=1e-9)
+    np.testing.assert_array_equal(offset["va"], clean["va"])
+    skew = simulate(P12, duration_s=2.0, seed=4, noise=0.0, effects={"sampling_skew": 1.0})
+    np.testing.assert_allclose(skew["ia"][1:], clean["ia"][:-1], atol=1e-12)
+    x = np.arange(10.0) ** 3
+    np.testing.assert_allclose(delayed(x, 0.5)[2:-2], (np.arange(2, 8) - 0.5) ** 3, rtol=1e-12)
+
+
+def test_thermal_drift_raises_the_resistance_over_the_recording():
+    rec = simulate(P12, duration_s=6.0, seed=2, noise=0.0, effects={"thermal_drift": 0.3})
+    fx = plant_effects(P12, {"thermal_drift": 0.3}, rec.dt)
+    assert rec.metadata["effects"]["physical"]["thermal_rise_per_w"] == fx.thermal_rise_per_w
+    # In steady field operation if = vf / Rf(t): the field current falls as it heats.
+    early, late = slice(2000, 2600), slice(-2600, -2000)
+    r_early = np.mean(rec["vf"][early]) / np.mean(rec["if"][early])
+    r_late = np.mean(rec["vf"][late]) / np.mean(rec["if"][late])
+    assert r_late > r_early * 1.005
+
+
+def test_brush_drop_shows_in_the_steady_armature_balance():
+    with_drop = simulate(P12, duration_s=4.0, seed=6, noise=0.0, effects={"brush_drop": 2.0})
+    va, ia = with_drop["va"], with_drop["ia"]
+    emf = P12.emf_constant_h * with_drop["if"] * with_drop["omega"]
+    steady = np.abs(np.gradient(ia)) < 1e-4
+    steady &= np.abs(ia) > 0.5
+    drop = va[steady] - P12.armature_resistance_ohm * ia[steady] - emf[steady]
+    np.testing.assert_allclose(drop, 2.0 * np.sign(ia[steady]), atol=0.1)
