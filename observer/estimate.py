@@ -404,7 +404,8 @@ def input_noise_variance(residual: np.ndarray, a: float, b: float) -> float:
     current noise plus input noise through the model's impulse response
     ``h_j = b*a^j``. Only the second term correlates across lags, with
     autocovariance ``s * b^2 * a^tau / (1 - a^2)``; ``s`` is fitted by least
-    squares over lags 1 to three time constants.
+    squares over lags 1 to three time constants, beside a constant for slow
+    structure.
     """
     if not math.exp(-1.0) <= a < 1.0:
         # Time constant under one sample: input noise through the model is as
@@ -416,8 +417,11 @@ def input_noise_variance(residual: np.ndarray, a: float, b: float) -> float:
     m = int(min(200, max(5, 3 * tau_samples), n // 4))
     cov = np.array([r[:-lag] @ r[lag:] / n for lag in range(1, m + 1)])
     shape = b * b * a ** np.arange(1, m + 1) / (1.0 - a * a)
-    s = float(cov @ shape / (shape @ shape))
-    return max(s, 0.0)
+    # A constant term takes up slow structure (model error, drift) that would
+    # otherwise be read as input noise and over-correct.
+    design = np.column_stack([shape, np.ones(m)])
+    (s, _slow), *_ = np.linalg.lstsq(design, cov, rcond=None)
+    return max(float(s), 0.0)
 
 
 # ------------------------------------------------------------------ estimators
