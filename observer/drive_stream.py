@@ -15,13 +15,17 @@ the excitation field estimation needs.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from observer import kernels
 from observer.motor import P12, MotorParameters
-from observer.simulate import NoiseLevels, controller_gains, duty_cycle_profiles
+from observer.simulate import (
+    NoiseLevels,
+    controller_gains,
+    duty_cycle_profiles,
+    plant_array,
+    substeps,
+)
 
 #: Column order of :meth:`DriveStream.take`.
 STREAM_CHANNELS: tuple[str, ...] = ("va", "ia", "vf", "if", "omega")
@@ -63,18 +67,8 @@ class DriveStream:
         )
         self.chunk_n = max(2, int(round(chunk_s * sample_rate_hz)))
         self._rng = np.random.default_rng(seed)
-        self._n_sub = max(1, math.ceil(50 * self.dt / motor.armature_time_constant_s))
-        self._motor_array = np.array(
-            [
-                motor.field_resistance_ohm,
-                motor.field_inductance_h,
-                motor.armature_resistance_ohm,
-                motor.armature_inductance_h,
-                motor.emf_constant_h,
-                motor.inertia_kgm2,
-                motor.friction_nms,
-            ]
-        )
+        self._n_sub = substeps(motor, self.dt)
+        self._motor_array = plant_array(motor)
         self._gains = controller_gains(motor, self.dt)
         self._state = np.zeros(3)  # if, ia, omega: at rest, field off
         self._pending = np.empty((0, 5))

@@ -94,6 +94,26 @@ def duty_cycle_profiles(
     return speed, load, field
 
 
+def plant_array(motor: MotorParameters) -> np.ndarray:
+    """The motor as :func:`kernels.simulate_drive` takes it: ``Rf, Lf, Ra, La, K, J, B``."""
+    return np.array(
+        [
+            motor.field_resistance_ohm,
+            motor.field_inductance_h,
+            motor.armature_resistance_ohm,
+            motor.armature_inductance_h,
+            motor.emf_constant_h,
+            motor.inertia_kgm2,
+            motor.friction_nms,
+        ]
+    )
+
+
+def substeps(motor: MotorParameters, dt: float) -> int:
+    """RK4 sub-steps per sample: 50 per armature time constant (error ~1e-9)."""
+    return max(1, math.ceil(50 * dt / motor.armature_time_constant_s))
+
+
 def controller_gains(motor: MotorParameters, dt: float) -> np.ndarray:
     """Gains and limits of the drive's cascade controller (see :func:`kernels.simulate_drive`)."""
     # Current loop: closed-loop time constant a third of the armature's, but
@@ -162,18 +182,8 @@ def simulate(
         raise ValueError(f"a recording needs at least 2 samples, got {n}")
     speed, load, field = duty_cycle_profiles(motor, n, dt, rng)
     noise_samples = rng.standard_normal((n, 5)) * levels.as_array()
-    n_sub = max(1, math.ceil(50 * dt / motor.armature_time_constant_s))
-    motor_array = np.array(
-        [
-            motor.field_resistance_ohm,
-            motor.field_inductance_h,
-            motor.armature_resistance_ohm,
-            motor.armature_inductance_h,
-            motor.emf_constant_h,
-            motor.inertia_kgm2,
-            motor.friction_nms,
-        ]
-    )
+    n_sub = substeps(motor, dt)
+    motor_array = plant_array(motor)
     # Start at rest with the field established, as a drive does after pre-excitation.
     state0 = np.array([field[0] / motor.field_resistance_ohm, 0.0, 0.0])
     fx_meta = None
