@@ -669,9 +669,14 @@ def estimate_armature(
         else:
             # Pressed against the edge: the compensation model does not fit this
             # window (weak excitation, or unmodelled physics read as input noise).
-            # Keep the plain fit, and say it may be off by as much as the box.
+            # Keep the plain fit. La may be off by as much as the box; R and K by
+            # as much as the refused correction would have moved them (usually
+            # little: it is La that input noise biases).
             noise_var = 0.0
-            bias_bound = (_COMPENSATION_FACTOR - 1.0) * np.abs(plain)
+            r_edge, l_edge = (float(v) for v in 10.0**refined.x)
+            k_edge, _, _ = _armature_linear(r_edge, l_edge, va, emf, ia, dt, emf_constant)
+            bias_bound = np.abs(np.array([r_edge, l_edge, k_edge]) - plain)
+            bias_bound[1] = max(bias_bound[1], (_COMPENSATION_FACTOR - 1.0) * abs(plain[1]))
     stds_ = np.hypot(
         np.array([resistance * std[0], inductance * std[1], std[3] if fit_k else 0.0]), bias_bound
     )
