@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from typing import Any
 
 from observer.config import ZenohConfig
@@ -104,6 +105,28 @@ class ZenohPublisher:
                 ",".join(self.config.listen) or "-", ",".join(self.config.connect) or "-",
             )  # fmt: skip
             return
+
+    def wait_for_peer(self, timeout: float) -> bool:
+        """Wait until the session is open and connected to a peer or router.
+
+        Returns False if none connected within ``timeout`` seconds (or Zenoh is off).
+        """
+        if not self.config.enabled:
+            return False
+        deadline = time.monotonic() + timeout
+        while not self._stop.is_set():
+            session = self._session
+            if session is not None:
+                try:
+                    if list(session.info.peers_zid()) or list(session.info.routers_zid()):
+                        return True
+                except Exception:  # a session closing under us: not connected
+                    pass
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            self._stop.wait(min(0.02, remaining))
+        return False
 
     def _on_query(self, query: Any) -> None:
         # Runs on a zenoh thread: only reads a reference and replies, never blocks.
