@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
+from observer.kernels import drive_controller_step
 from observer.motor import MotorParameters
 
 EFFECT_NAMES = (
@@ -272,8 +273,6 @@ def simulate_drive_effects(
     """
     n = speed_ref.shape[0]
     k_emf = motor[4]
-    kp_i, ki_i, kp_w, ki_w = control[0], control[1], control[2], control[3]
-    i_limit, v_limit, ramp = control[4], control[5], control[6]
     true = np.empty((n, 6))
     i_f, ia, omega = state0[0], state0[1], state0[2]
     j = 0.0
@@ -286,28 +285,9 @@ def simulate_drive_effects(
         ia_m = ia + noise[k, 1]
         if_m = i_f + noise[k, 3]
         w_m = omega + noise[k, 4]
-        step = speed_ref[k] - w_ref
-        if step > ramp * dt:
-            step = ramp * dt
-        elif step < -ramp * dt:
-            step = -ramp * dt
-        w_ref += step
-        err_w = w_ref - w_m
-        i_ref = kp_w * err_w + int_w
-        if i_ref > i_limit:
-            i_ref = i_limit
-        elif i_ref < -i_limit:
-            i_ref = -i_limit
-        else:
-            int_w += ki_w * err_w * dt
-        err_i = i_ref - ia_m
-        va = kp_i * err_i + int_i + k_emf * if_m * w_m
-        if va > v_limit:
-            va = v_limit
-        elif va < -v_limit:
-            va = -v_limit
-        else:
-            int_i += ki_i * err_i * dt
+        va, w_ref, int_w, int_i = drive_controller_step(
+            control, k_emf, dt, speed_ref[k], ia_m, if_m, w_m, w_ref, int_w, int_i
+        )
         v_field = vf[k]
         true[k, 0] = va
         true[k, 1] = ia

@@ -411,6 +411,54 @@ def _armature_mech_rhs(
 
 
 @njit(nogil=True, cache=True)
+def drive_controller_step(
+    control: np.ndarray,
+    k_emf: float,
+    dt: float,
+    speed_ref: float,
+    ia_m: float,
+    if_m: float,
+    w_m: float,
+    w_ref: float,
+    int_w: float,
+    int_i: float,
+) -> tuple[float, float, float, float]:
+    """One sample of the drive's cascade controller, on measured ``ia, if, omega``.
+
+    Speed loop (ramped reference, PI, current limit, anti-windup) -> current
+    reference; current loop (PI with back-EMF feed-forward, voltage limit,
+    anti-windup) -> armature voltage held until the next sample. ``control`` is
+    ``kp_i, ki_i, kp_w, ki_w, i_limit, v_limit, ramp``. Returns
+    ``va, w_ref, int_w, int_i``.
+    """
+    kp_i, ki_i, kp_w, ki_w = control[0], control[1], control[2], control[3]
+    i_limit, v_limit, ramp = control[4], control[5], control[6]
+    step = speed_ref - w_ref
+    if step > ramp * dt:
+        step = ramp * dt
+    elif step < -ramp * dt:
+        step = -ramp * dt
+    w_ref += step
+    err_w = w_ref - w_m
+    i_ref = kp_w * err_w + int_w
+    if i_ref > i_limit:
+        i_ref = i_limit
+    elif i_ref < -i_limit:
+        i_ref = -i_limit
+    else:
+        int_w += ki_w * err_w * dt
+    err_i = i_ref - ia_m
+    va = kp_i * err_i + int_i + k_emf * if_m * w_m
+    if va > v_limit:
+        va = v_limit
+    elif va < -v_limit:
+        va = -v_limit
+    else:
+        int_i += ki_i * err_i * dt
+    return va, w_ref, int_w, int_i
+
+
+@njit(nogil=True, cache=True)
 def simulate_drive(
     dt: float,
     n_sub: int,
@@ -451,8 +499,6 @@ def simulate_drive(
     """
     n = speed_ref.shape[0]
     rf, lf, k_emf = motor[0], motor[1], motor[4]
-    kp_i, ki_i, kp_w, ki_w = control[0], control[1], control[2], control[3]
-    i_limit, v_limit, ramp = control[4], control[5], control[6]
     true = np.empty((n, 5))
     meas = np.empty((n, 5))
     i_f, ia, omega = state0[0], state0[1], state0[2]
@@ -464,30 +510,9 @@ def simulate_drive(
         ia_m = ia + noise[k, 1]
         if_m = i_f + noise[k, 3]
         w_m = omega + noise[k, 4]
-        # Speed loop -> current reference (with ramp, limit and anti-windup).
-        step = speed_ref[k] - w_ref
-        if step > ramp * dt:
-            step = ramp * dt
-        elif step < -ramp * dt:
-            step = -ramp * dt
-        w_ref += step
-        err_w = w_ref - w_m
-        i_ref = kp_w * err_w + int_w
-        if i_ref > i_limit:
-            i_ref = i_limit
-        elif i_ref < -i_limit:
-            i_ref = -i_limit
-        else:
-            int_w += ki_w * err_w * dt
-        # Current loop with back-EMF feed-forward -> armature voltage.
-        err_i = i_ref - ia_m
-        va = kp_i * err_i + int_i + k_emf * if_m * w_m
-        if va > v_limit:
-            va = v_limit
-        elif va < -v_limit:
-            va = -v_limit
-        else:
-            int_i += ki_i * err_i * dt
+        va, w_ref, int_w, int_i = drive_controller_step(
+            control, k_emf, dt, speed_ref[k], ia_m, if_m, w_m, w_ref, int_w, int_i
+        )
         v_field = vf[k]
         true[k, 0] = va
         true[k, 1] = ia
