@@ -182,10 +182,10 @@ class ZenohConfig:
     connect: list[str] = dataclasses.field(default_factory=list)
     multicast_scouting: bool = False
     retry_s: float = dataclasses.field(default=5.0, metadata={"check": _positive})
-    # At start, wait up to this long for a Zenoh peer (a subscriber) to connect before
-    # the source is read, so the first estimates are not published to nobody. 0: never
-    # wait (a drive must not depend on a subscriber); demos and tests set it.
-    wait_for_peers_s: float = dataclasses.field(default=0.0, metadata={"min": 0.0})
+    # At start, wait up to this long for a subscriber of the estimates to be matched
+    # before the source is read, so the first estimates are not published to nobody.
+    # 0: never wait (a drive must not depend on a subscriber); demos and tests set it.
+    wait_for_subscriber_s: float = dataclasses.field(default=0.0, metadata={"min": 0.0})
 
 
 @dataclass(frozen=True)

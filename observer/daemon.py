@@ -93,12 +93,12 @@ class Daemon:
         if self.mcap is not None:
             self.mcap.start()
         self.zenoh.start()
-        wait = self.config.zenoh.wait_for_peers_s
+        wait = self.config.zenoh.wait_for_subscriber_s
         if wait > 0:
-            if self.zenoh.wait_for_peer(wait):
-                log.info("zenoh: a peer is connected; starting the source")
+            if self.zenoh.wait_for_subscriber(wait):
+                log.info("zenoh: a subscriber is matched; starting the source")
             else:
-                log.warning("zenoh: no peer connected within %g s; starting anyway", wait)
+                log.warning("zenoh: no subscriber matched within %g s; starting anyway", wait)
         self._obs.start()
         self._acq.start()
 

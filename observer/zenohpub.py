@@ -106,21 +106,23 @@ class ZenohPublisher:
             )  # fmt: skip
             return
 
-    def wait_for_peer(self, timeout: float) -> bool:
-        """Wait until the session is open and connected to a peer or router.
+    def wait_for_subscriber(self, timeout: float) -> bool:
+        """Wait until a subscriber matches the estimate key.
 
-        Returns False if none connected within ``timeout`` seconds (or Zenoh is off).
+        A connected transport is not enough: until the subscriber's declaration
+        has reached this session, puts are not routed to it. Returns False if no
+        subscriber matched within ``timeout`` seconds (or Zenoh is off).
         """
         if not self.config.enabled:
             return False
         deadline = time.monotonic() + timeout
         while not self._stop.is_set():
-            session = self._session
-            if session is not None:
+            publisher = self._publishers.get("estimate")
+            if publisher is not None:
                 try:
-                    if list(session.info.peers_zid()) or list(session.info.routers_zid()):
+                    if publisher.matching_status.matching:
                         return True
-                except Exception:  # a session closing under us: not connected
+                except Exception:  # a publisher closing under us: not matched
                     pass
             remaining = deadline - time.monotonic()
             if remaining <= 0:

@@ -174,11 +174,11 @@ def test_done_when_subscriber_tracks_ra_rise_and_log_is_readable(
          f"tcp/127.0.0.1:{port}", "--timeout", "120"],
     )  # fmt: skip
     sub.wait_line("subscribed to", timeout=30)
-    # The daemon reads its source only once the subscriber is connected (an event, not
-    # a guess at how long the connection takes on a loaded machine).
+    # The daemon reads its source only once the subscriber is matched (an event, not
+    # a guess at how long connection and declaration take on a loaded machine).
     zenoh = (
         f'mode = "peer"\nlisten = []\nconnect = ["tcp/127.0.0.1:{port}"]\n'
-        "wait_for_peers_s = 60.0"
+        "wait_for_subscriber_s = 60.0"
     )
     log_dir = tmp_path / "logs"
     cfg = _config(tmp_path, ra_rise_recording, speed=2.0, zenoh=zenoh, log_dir=log_dir)
@@ -193,7 +193,7 @@ def test_done_when_subscriber_tracks_ra_rise_and_log_is_readable(
             break
         sub.lines.get(timeout=0.5) if not sub.lines.empty() else time.sleep(0.05)
     got = [json.loads(x) for x in sub.stdout if x.startswith("{")]
-    assert any("a peer is connected" in line for line in daemon.stderr), daemon.stderr[-5:]
+    assert any("a subscriber is matched" in line for line in daemon.stderr), daemon.stderr[-5:]
     assert len(got) >= n_windows // 2, "the subscriber received estimates over Zenoh"
     assert {e["drive_id"] for e in got} == {"test"}
 
