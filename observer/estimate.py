@@ -155,6 +155,15 @@ class CircuitEstimate:
 # ----------------------------------------------------------------- search range
 
 
+def _kernel_array(x: Any) -> np.ndarray:
+    """Contiguous, writable float64: the one array type the kernels are compiled for.
+
+    numba compiles a separate specialisation for read-only arrays (a Recording's
+    are), which on a cold cache costs seconds at the first real window.
+    """
+    return np.require(x, dtype=np.float64, requirements=["C", "W"])
+
+
 def _check_signals(**signals: np.ndarray) -> int:
     n = -1
     for name, x in signals.items():
@@ -507,14 +516,14 @@ def estimate_field(
         Refine the swarm's best by Levenberg-Marquardt (default). Off, the
         estimate is the swarm's alone, as in the paper.
     """
-    vf = np.ascontiguousarray(vf, dtype=np.float64)
-    i_f = np.ascontiguousarray(i_f, dtype=np.float64)
+    vf = _kernel_array(vf)
+    i_f = _kernel_array(i_f)
     n = _check_signals(vf=vf, i_f=i_f)
     rng_ = np.random.default_rng(rng)
     bounds = search_range if search_range is not None else field_search_range(vf, i_f, dt)
 
     def cost(x: np.ndarray) -> np.ndarray:
-        return kernels.rl_swarm_costs(x, vf, i_f, dt, True)
+        return kernels.rl_swarm_costs(x, vf, i_f, dt, True, 0.0)
 
     result = _run_swarm(
         cost, bounds, n_particles=n_particles, max_iterations=max_iterations,
@@ -594,10 +603,10 @@ def estimate_armature(
     Other parameters
         As for :func:`estimate_field`.
     """
-    va = np.ascontiguousarray(va, dtype=np.float64)
-    ia = np.ascontiguousarray(ia, dtype=np.float64)
-    i_f = np.ascontiguousarray(i_f, dtype=np.float64)
-    omega = np.ascontiguousarray(omega, dtype=np.float64)
+    va = _kernel_array(va)
+    ia = _kernel_array(ia)
+    i_f = _kernel_array(i_f)
+    omega = _kernel_array(omega)
     n = _check_signals(va=va, ia=ia, i_f=i_f, omega=omega)
     rng_ = np.random.default_rng(rng)
     bounds = (
@@ -607,7 +616,7 @@ def estimate_armature(
     k_arg = math.nan if emf_constant is None else float(emf_constant)
 
     def cost(x: np.ndarray) -> np.ndarray:
-        return kernels.armature_swarm_costs(x, va, emf, ia, dt, True, k_arg)
+        return kernels.armature_swarm_costs(x, va, emf, ia, dt, True, k_arg, 0.0)
 
     result = _run_swarm(
         cost, bounds, n_particles=n_particles, max_iterations=max_iterations,

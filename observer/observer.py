@@ -433,21 +433,27 @@ class SlidingWindowObserver:
 
 def warm_up_kernels() -> float:
     """Compile (or load from the numba cache) every kernel the observer uses; seconds taken."""
+    from observer import kernels
     from observer.motor import P12
     from observer.simulate import simulate
 
     started = time.monotonic()
     rec = simulate(P12, duration_s=0.2, sample_rate_hz=1000.0, noise=0.002, seed=0)
+    # Writable copies, as the ring buffer hands out: numba compiles read-only
+    # arrays separately, and a window must not wait for a compilation.
+    va, ia, vf, i_f, omega = (np.array(rec[c]) for c in ("va", "ia", "vf", "if", "omega"))
+    # The compensated swarm's call, whatever the fits below reach.
+    emf = kernels.emf_input(i_f, omega)
+    x = np.log10([[3.5, 0.02]])
+    kernels.armature_swarm_costs(x, va, emf, ia, rec.dt, True, float("nan"), 0.5)
+    kernels.rl_swarm_costs(x, vf, i_f, rec.dt, True, 0.5)
     # Only compilation matters here: a fit of 0.2 s may fail, the kernels are loaded anyway.
     try:
-        estimate_field(rec["vf"], rec["if"], rec.dt, n_particles=4, max_iterations=2, rng=0)
+        estimate_field(vf, i_f, rec.dt, n_particles=4, max_iterations=2, rng=0)
     except (ArithmeticError, ValueError):
         pass
     try:
-        estimate_armature(
-            rec["va"], rec["ia"], rec["if"], rec["omega"], rec.dt,
-            n_particles=4, max_iterations=2, rng=0,
-        )  # fmt: skip
+        estimate_armature(va, ia, i_f, omega, rec.dt, n_particles=4, max_iterations=2, rng=0)
     except (ArithmeticError, ValueError):
         pass
     return time.monotonic() - started
