@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from drivers.base import CHANNELS, SourceError
-from drivers.pump import Backoff, DeviceClock, DeviceLost, PumpedSource
+from drivers.pump import DeviceClock, DeviceLost, PumpedSource, PumpOptions
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +55,7 @@ def _p12_signals() -> dict[str, str]:
 
 
 @dataclass(frozen=True)
-class CanOptions:
+class CanOptions(PumpOptions):
     """``[source.options]`` of ``kind = "can"``."""
 
     interface: str = dataclasses.field(
@@ -78,10 +78,6 @@ class CanOptions:
         metadata={"help": "'Message.Signal' of a microsecond device clock; '' for host time"},
     )
     time_bits: int = dataclasses.field(default=24, metadata={"min": 8, "max": 64})
-    buffer_samples: int = dataclasses.field(default=65536, metadata={"min": 1})
-    stale_timeout_s: float = dataclasses.field(default=2.0, metadata={"min": 0.0})
-    reconnect_initial_s: float = dataclasses.field(default=0.05, metadata={"min": 0.001})
-    reconnect_max_s: float = dataclasses.field(default=2.0, metadata={"min": 0.001})
 
     def __post_init__(self) -> None:
         if not self.signals:
@@ -120,11 +116,7 @@ class CanSource(PumpedSource):
         opts = options if options is not None else CanOptions()
         if overrides:
             opts = dataclasses.replace(opts, **overrides)
-        super().__init__(
-            buffer_samples=opts.buffer_samples,
-            backoff=Backoff(opts.reconnect_initial_s, opts.reconnect_max_s),
-            stale_timeout_s=opts.stale_timeout_s,
-        )
+        super().__init__(**opts.pump_settings())
         self.options = opts
         try:
             db = cantools.database.load_file(str(opts.dbc))

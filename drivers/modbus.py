@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from drivers.base import CHANNELS
-from drivers.pump import Backoff, DeviceClock, DeviceLost, PumpedSource
+from drivers.pump import DeviceClock, DeviceLost, PumpedSource, PumpOptions
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +91,7 @@ def p12_register_map() -> list[RegisterSpec]:
 
 
 @dataclass(frozen=True)
-class ModbusOptions:
+class ModbusOptions(PumpOptions):
     """``[source.options]`` of ``kind = "modbus"``."""
 
     transport: str = dataclasses.field(default="tcp", metadata={"choices": ("tcp", "rtu")})
@@ -106,10 +106,6 @@ class ModbusOptions:
     timeout_s: float = dataclasses.field(default=0.1, metadata={"min": 0.001})
     word_order: str = dataclasses.field(default="big", metadata={"choices": ("big", "little")})
     registers: list[RegisterSpec] = dataclasses.field(default_factory=p12_register_map)
-    buffer_samples: int = dataclasses.field(default=65536, metadata={"min": 1})
-    stale_timeout_s: float = dataclasses.field(default=2.0, metadata={"min": 0.0})
-    reconnect_initial_s: float = dataclasses.field(default=0.05, metadata={"min": 0.001})
-    reconnect_max_s: float = dataclasses.field(default=2.0, metadata={"min": 0.001})
 
     def __post_init__(self) -> None:
         names = [r.channel for r in self.registers]
@@ -142,11 +138,7 @@ class ModbusSource(PumpedSource):
         opts = options if options is not None else ModbusOptions()
         if overrides:
             opts = dataclasses.replace(opts, **overrides)
-        super().__init__(
-            buffer_samples=opts.buffer_samples,
-            backoff=Backoff(opts.reconnect_initial_s, opts.reconnect_max_s),
-            stale_timeout_s=opts.stale_timeout_s,
-        )
+        super().__init__(**opts.pump_settings())
         self.options = opts
         self._period = 1.0 / opts.poll_rate_hz
         self._spans: list[tuple[str, int, int, list[RegisterSpec]]] = []

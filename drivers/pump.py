@@ -24,6 +24,7 @@ device clock stamp samples with the host monotonic clock when they arrive
 from __future__ import annotations
 
 import abc
+import dataclasses
 import logging
 import threading
 import time
@@ -41,6 +42,29 @@ log = logging.getLogger(__name__)
 
 class DeviceLost(Exception):
     """The device went away (port closed, peer disconnected, silent too long)."""
+
+
+@dataclass(frozen=True)
+class PumpOptions:
+    """Options every pumped source has: its buffer, staleness and reconnect backoff.
+
+    A source's ``Options`` dataclass derives from this, so the four keys read the
+    same in every ``[source.options]`` table and :meth:`PumpedSource.__init__` takes
+    them from one place.
+    """
+
+    buffer_samples: int = dataclasses.field(default=65536, metadata={"min": 1})
+    stale_timeout_s: float = dataclasses.field(default=2.0, metadata={"min": 0.0})
+    reconnect_initial_s: float = dataclasses.field(default=0.05, metadata={"min": 0.001})
+    reconnect_max_s: float = dataclasses.field(default=2.0, metadata={"min": 0.001})
+
+    def pump_settings(self) -> dict[str, Any]:
+        """Keyword arguments of :class:`PumpedSource` for these options."""
+        return {
+            "buffer_samples": self.buffer_samples,
+            "backoff": Backoff(self.reconnect_initial_s, self.reconnect_max_s),
+            "stale_timeout_s": self.stale_timeout_s,
+        }
 
 
 @dataclass

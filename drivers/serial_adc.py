@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from drivers.base import CHANNELS
-from drivers.pump import Backoff, DeviceClock, DeviceLost, PumpedSource
+from drivers.pump import DeviceClock, DeviceLost, PumpedSource, PumpOptions
 
 log = logging.getLogger(__name__)
 
@@ -185,7 +185,7 @@ SERIAL_P12_SCALE: tuple[float, ...] = (0.01, 0.001, 0.02, 0.0001, 0.01)
 
 
 @dataclass(frozen=True)
-class SerialOptions:
+class SerialOptions(PumpOptions):
     """``[source.options]`` of ``kind = "serial"``."""
 
     port: str = dataclasses.field(
@@ -202,10 +202,6 @@ class SerialOptions:
     offset: list[float] = dataclasses.field(
         default_factory=list, metadata={"help": "SI offset per position (default 0)"}
     )
-    buffer_samples: int = dataclasses.field(default=65536, metadata={"min": 1})
-    stale_timeout_s: float = dataclasses.field(default=2.0, metadata={"min": 0.0})
-    reconnect_initial_s: float = dataclasses.field(default=0.05, metadata={"min": 0.001})
-    reconnect_max_s: float = dataclasses.field(default=2.0, metadata={"min": 0.001})
 
     def __post_init__(self) -> None:
         n = len(self.channels)
@@ -241,11 +237,7 @@ class SerialAdcSource(PumpedSource):
         opts = options if options is not None else SerialOptions()
         if overrides:
             opts = dataclasses.replace(opts, **overrides)
-        super().__init__(
-            buffer_samples=opts.buffer_samples,
-            backoff=Backoff(opts.reconnect_initial_s, opts.reconnect_max_s),
-            stale_timeout_s=opts.stale_timeout_s,
-        )
+        super().__init__(**opts.pump_settings())
         self.options = opts
         n = len(opts.channels)
         self._parser = FrameParser(n)
