@@ -277,6 +277,21 @@ def _armature_linear(
 # ------------------------------------------------------ polish and uncertainty
 
 
+def _jacobian(residual: Any, theta: np.ndarray) -> np.ndarray:
+    """Sensitivities of ``residual`` at ``theta`` by central differences.
+
+    The models are cheap (microseconds per simulation) and smooth in every parameter.
+    """
+    cols = []
+    for j in range(theta.size):
+        h = 1e-6 * max(abs(theta[j]), 1e-3)
+        up, down = theta.copy(), theta.copy()
+        up[j] += h
+        down[j] -= h
+        cols.append((residual(up) - residual(down)) / (2 * h))
+    return np.column_stack(cols)
+
+
 def _levenberg_marquardt(
     residual: Any,
     theta: np.ndarray,
@@ -289,8 +304,7 @@ def _levenberg_marquardt(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimise ``|residual(theta)|^2``; return ``theta``, residual and Jacobian there.
 
-    Forward sensitivities are taken by central differences: the models are
-    cheap (microseconds per simulation) and smooth in every parameter. Steps
+    Sensitivities come from :func:`_jacobian`. Steps
     are kept inside ``[lower, upper]`` (the swarm's search range): in a window
     that does not identify a parameter the cost is flat along it, and an
     unbounded step would run ``log L`` to overflow.
@@ -306,19 +320,9 @@ def _levenberg_marquardt(
             return None
         return r_ if np.all(np.isfinite(r_)) else None
 
-    def jacobian(th: np.ndarray) -> np.ndarray:
-        cols = []
-        for j in range(th.size):
-            h = 1e-6 * max(abs(th[j]), 1e-3)
-            up, down = th.copy(), th.copy()
-            up[j] += h
-            down[j] -= h
-            cols.append((residual(up) - residual(down)) / (2 * h))
-        return np.column_stack(cols)
-
     r = residual(theta)
     cost = float(r @ r)
-    jac = jacobian(theta)
+    jac = _jacobian(residual, theta)
     damping = 1e-3
     for _ in range(max_iterations):
         jtj = jac.T @ jac
@@ -349,7 +353,7 @@ def _levenberg_marquardt(
         relative_gain = (cost - cost_trial) / max(cost, 1e-300)
         moved = float(np.max(np.abs(trial - theta) / np.maximum(np.abs(theta), 1.0)))
         theta, r, cost = trial, r_trial, cost_trial
-        jac = jacobian(theta)
+        jac = _jacobian(residual, theta)
         damping = max(damping / 10, 1e-9)
         # Converged, or creeping along a direction the window does not identify
         # (flat cost, e.g. Lf under constant field voltage): more steps buy nothing.
@@ -543,7 +547,7 @@ def estimate_field(
         theta, resid, jac = _levenberg_marquardt(residual, theta, lower=lower, upper=upper)
     else:
         resid = residual(theta)
-        _, _, jac = _levenberg_marquardt(residual, theta, max_iterations=0)
+        jac = _jacobian(residual, theta)
     std_log = _crlb_std(jac, resid, math.exp(theta[1] - theta[0]) / dt)
     resistance, inductance, i0 = math.exp(theta[0]), math.exp(theta[1]), float(theta[2])
     return CircuitEstimate(
@@ -641,7 +645,7 @@ def estimate_armature(
         theta, resid, jac = _levenberg_marquardt(residual, theta, lower=lower, upper=upper)
     else:
         resid = residual(theta)
-        _, _, jac = _levenberg_marquardt(residual, theta, max_iterations=0)
+        jac = _jacobian(residual, theta)
     std = _crlb_std(jac, resid, math.exp(theta[1] - theta[0]) / dt)
     resistance, inductance, i0 = math.exp(theta[0]), math.exp(theta[1]), float(theta[2])
     if fit_k:
