@@ -28,7 +28,7 @@ from drivers.can_bus import CanSource  # noqa: E402
 from drivers.fake_drive import CanFakeDrive  # noqa: E402
 from drivers.modbus import ModbusOptions, ModbusSource  # noqa: E402
 from drivers.serial_adc import SerialAdcSource, SerialOptions, frame_size  # noqa: E402
-from observer.drive_stream import DriveStream  # noqa: E402
+from observer.simulation.drive_stream import DriveStream  # noqa: E402
 from tests.drivers.peers import FakeDrive  # noqa: E402
 
 

@@ -4,7 +4,7 @@ Same data (a window of a simulated P-12 recording with a field step), same
 cost budget (particles x iterations), same machine, one process:
 
 1. **speed** of one field estimate: this PSO (``estimate_field`` with polish
-   off, and the bare ``observer.pso.minimize`` on ``kernels.rl_swarm_costs``)
+   off, and the bare ``observer.estimation.pso.minimize`` on ``kernels.rl_swarm_costs``)
    against pyswarms ``GlobalBestPSO`` with a numpy objective and with this
    project's compiled cost, scipy's ``differential_evolution`` and
    ``least_squares``, and equation-error least squares / recursive least squares;
@@ -40,15 +40,15 @@ from bench.common import (
     machine_description,
     p12_window,
 )
-from observer import kernels, pso
-from observer.estimate import (
+from observer.estimation import kernels, pso
+from observer.estimation.estimate import (
     CircuitEstimate,
     estimate_armature,
     estimate_field,
     field_search_range,
 )
-from observer.motor import P12
-from observer.simulate import NoiseLevels
+from observer.estimation.motor import P12
+from observer.simulation.simulate import NoiseLevels
 
 #: Targets from issue 2.
 TARGET_MEDIAN_MS = 10.0

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from observer.motor import P12, MotorParameters
-from observer.simulate import NoiseLevels, simulate
+from observer.estimation.motor import P12, MotorParameters
+from observer.simulation.simulate import NoiseLevels, simulate
 
 #: The paper's table: "given" values and the estimates per column
 #: (option A: 100 particles, 100/500/1000 iterations; option B: 500 iterations,

@@ -33,11 +33,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from observer.config import Config, LogConfig, ObserverConfig, ZenohConfig  # noqa: E402
-from observer.daemon import Daemon, run_offline  # noqa: E402
-from observer.motor import P12  # noqa: E402
-from observer.observer import warm_up_kernels  # noqa: E402
+from observer.estimation.motor import P12  # noqa: E402
 from observer.recording import write_recording  # noqa: E402
-from observer.simulate import simulate  # noqa: E402
+from observer.service.daemon import Daemon, run_offline  # noqa: E402
+from observer.service.window_observer import warm_up_kernels  # noqa: E402
+from observer.simulation.simulate import simulate  # noqa: E402
 from replay.source import ReplayOptions, ReplaySource  # noqa: E402
 
 

@@ -39,9 +39,9 @@ CASES: dict[str, tuple[float, float, str]] = {
 
 
 def run_case(job: dict[str, Any]) -> dict[str, Any]:
-    from observer.diagnose import diagnose
-    from observer.motor import MOTORS
-    from observer.simulate import simulate
+    from observer.diagnosis.diagnose import diagnose
+    from observer.estimation.motor import MOTORS
+    from observer.simulation.simulate import simulate
 
     effects = {job["effect"]: job["magnitude"]} if job["effect"] else None
     rec = simulate(

@@ -41,9 +41,9 @@ from bench.common import (
     machine_description,
     p12_window,
 )
-from observer import kernels
-from observer.estimate import CircuitEstimate, estimate_armature, estimate_field
-from observer.pso import SCHEDULES
+from observer.estimation import kernels
+from observer.estimation.estimate import CircuitEstimate, estimate_armature, estimate_field
+from observer.estimation.pso import SCHEDULES
 
 PARAMETERS = ("Rf", "Lf", "Ra", "La", "K")
 BLOCKS = ("swarm", "full")
@@ -228,7 +228,7 @@ def format_table(
         + f" --seeds {n_seeds}` ({args.machine}).",
         "",
         f"Data: per seed, a {WINDOW_SAMPLES}-sample window ({WINDOW_SAMPLES / SAMPLE_RATE_HZ:g} s "
-        f"at {SAMPLE_RATE_HZ:g} Hz) of a simulated P-12 recording (`observer.simulate`, "
+        f"at {SAMPLE_RATE_HZ:g} Hz) of a simulated P-12 recording (`observer.simulation.simulate`, "
         f"sensor noise {100 * args.noise:g} % of rated on every channel), starting a quarter "
         "window before the first field-voltage step (the duty cycle's field weakening, while "
         "the drive reverses the hoist), so both windings are excited. The truth is the "

@@ -23,7 +23,7 @@ from collections.abc import Callable
 import numpy as np
 from numba import njit
 
-from observer import kernels
+from observer.estimation import kernels
 
 # ------------------------------------------------------- equation error (LS)
 
@@ -172,7 +172,7 @@ def numpy_field_cost(
 ) -> Callable[[np.ndarray], np.ndarray]:
     """Eq. (1) as a numpy user writes it: vectorised over particles, a Python loop over samples.
 
-    It is the same cost as :func:`observer.kernels.rl_swarm_costs` (initial current
+    It is the same cost as :func:`observer.estimation.kernels.rl_swarm_costs` (initial current
     projected out), so every optimiser minimises the same function.
     """
     n = vf.shape[0]

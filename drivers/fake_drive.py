@@ -1,6 +1,6 @@
 """Simulated drives speaking the adapters' real protocols (peers of ``dcobserver fake-drive``).
 
-Each fake drive takes samples from an :class:`observer.drive_stream.DriveStream`
+Each fake drive takes samples from an :class:`observer.simulation.drive_stream.DriveStream`
 in real time (or ``speedup`` times faster; device timestamps stay in simulated
 time) and serves them over a real transport: serial frames on a
 pseudo-terminal, CAN frames per ``config/p12.dbc`` on a python-can bus, a

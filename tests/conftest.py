@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from observer.motor import P12, TRACTION_60V
-from observer.simulate import simulate
+from observer.estimation.motor import P12, TRACTION_60V
+from observer.simulation.simulate import simulate
 
 
 @pytest.fixture(scope="session")

@@ -30,8 +30,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
-    from observer.diagnose import diagnose
-    from observer.effects import LIBRARY
+    from observer.diagnosis.diagnose import diagnose
+    from observer.diagnosis.effects import LIBRARY
     from observer.recording import read_recording
 
     if args.particles < 2 or args.iterations < 0:
@@ -52,7 +52,7 @@ def main(args: argparse.Namespace) -> int:
     if args.json:
         _write(args.json, json.dumps(_finite(result), indent=1, allow_nan=False) + "\n")
     if args.report:
-        from observer.diagnose_report import render_html
+        from observer.diagnosis.report import render_html
 
         _write(
             args.report, render_html(diag, rec, title=f"dcobserver diagnosis of {args.recording}")

@@ -17,13 +17,13 @@ import threading
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from observer.drive_stream import DriveStream
+    from observer.simulation.drive_stream import DriveStream
 
 log = logging.getLogger(__name__)
 
 
 def _common(p: argparse.ArgumentParser) -> None:
-    from observer.motor import MOTORS
+    from observer.estimation.motor import MOTORS
 
     p.add_argument("--motor", choices=sorted(MOTORS), default="p12", help="motor to simulate")
     p.add_argument("--noise", type=float, default=0.002, metavar="FRACTION",
@@ -100,8 +100,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def _stream(args: argparse.Namespace, rate: float) -> DriveStream:
     from observer.cli import UserError
-    from observer.drive_stream import DriveStream
-    from observer.motor import MOTORS
+    from observer.estimation.motor import MOTORS
+    from observer.simulation.drive_stream import DriveStream
 
     if not rate > 0 or not args.speedup > 0 or args.noise < 0:
         raise UserError("--rate and --speedup must be > 0 and --noise >= 0")

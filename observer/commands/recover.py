@@ -21,7 +21,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
-    from observer.mcaplog import recover
+    from observer.service.mcaplog import recover
 
     if args.in_place and args.output:
         raise UserError("give either --output or --in-place")

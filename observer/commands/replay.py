@@ -26,9 +26,9 @@ def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
     from observer.commands.run import format_estimate
     from observer.config import Config, load_config
-    from observer.daemon import run_offline
-    from observer.mcaplog import to_json
-    from observer.observer import WindowResult
+    from observer.service.daemon import run_offline
+    from observer.service.mcaplog import to_json
+    from observer.service.window_observer import WindowResult
     from replay.source import ReplayOptions, ReplaySource
 
     config = load_config(args.config) if args.config else Config()

@@ -45,7 +45,7 @@ def format_estimate(e: dict[str, Any]) -> str:
 
 def _load(path: str) -> tuple[Any, Any]:
     from observer.config import load_config
-    from observer.daemon import make_source
+    from observer.service.daemon import make_source
 
     config: Any = load_config(path)
     source = make_source(config, path, Path(path).resolve().parent)
@@ -53,10 +53,10 @@ def _load(path: str) -> tuple[Any, Any]:
 
 
 def main(args: argparse.Namespace) -> int:
-    from observer import sdnotify
     from observer.cli import UserError
-    from observer.daemon import Daemon
-    from observer.observer import warm_up_kernels
+    from observer.service import sdnotify
+    from observer.service.daemon import Daemon
+    from observer.service.window_observer import warm_up_kernels
 
     path = args.config or str(DEMO_CONFIG)
     if args.config is None and not DEMO_CONFIG.is_file():

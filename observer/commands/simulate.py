@@ -9,7 +9,7 @@ log = logging.getLogger(__name__)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    from observer.motor import MOTORS
+    from observer.estimation.motor import MOTORS
 
     parser.add_argument("output", metavar="OUT", help="file to write: .csv, .csv.gz or .mcap")
     parser.add_argument("--motor", choices=sorted(MOTORS), default="p12", help="motor to simulate")
@@ -36,16 +36,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
-    from observer.motor import MOTORS
+    from observer.estimation.motor import MOTORS
     from observer.recording import write_recording
-    from observer.simulate import simulate
+    from observer.simulation.simulate import simulate
 
     if not args.duration > 0 or not args.rate > 0 or args.noise < 0:
         raise UserError("--duration and --rate must be > 0 and --noise >= 0")
     motor = MOTORS[args.motor]
     effects = None
     if args.effect is not None:
-        from observer.effects_sim import parse_effects
+        from observer.simulation.effects_sim import parse_effects
 
         try:
             effects = parse_effects(args.effect)

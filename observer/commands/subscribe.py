@@ -62,7 +62,7 @@ def main(args: argparse.Namespace) -> int:
 
     from observer.cli import UserError
     from observer.config import ZenohConfig
-    from observer.zenohpub import zenoh_config_json
+    from observer.service.zenohpub import zenoh_config_json
 
     listen = args.listen or []
     connect = (

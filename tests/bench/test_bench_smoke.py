@@ -20,7 +20,7 @@ import pytest
 
 from bench import bench_pso, paper_table, peers
 from bench.common import PAPER_COLUMNS, field_step_index, p12_window
-from observer import kernels
+from observer.estimation import kernels
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 REPO = Path(__file__).resolve().parents[2]

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from drivers.base import CHANNELS, SampleBlock, Source
-from observer.drive_stream import DriveStream
 from observer.recording import Recording
+from observer.simulation.drive_stream import DriveStream
 
 REPO = Path(__file__).resolve().parents[2]
 

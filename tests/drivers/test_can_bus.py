@@ -19,10 +19,10 @@ from drivers import source_class
 from drivers.base import SourceError
 from drivers.can_bus import P12_DBC, CanOptions, CanSource
 from drivers.fake_drive import CanFakeDrive
-from observer.drive_stream import DriveStream
-from observer.estimate import estimate_recording
-from observer.motor import P12
+from observer.estimation.estimate import estimate_recording
+from observer.estimation.motor import P12
 from observer.recording import read_recording
+from observer.simulation.drive_stream import DriveStream
 from tests.drivers.contract import SourceContract
 from tests.drivers.peers import REPO, collect, concat, to_recording, wait_for
 

@@ -19,8 +19,8 @@ from drivers.serial_adc import (
     encode_frame,
     frame_size,
 )
-from observer.estimate import estimate_recording
-from observer.motor import P12
+from observer.estimation.estimate import estimate_recording
+from observer.estimation.motor import P12
 from tests.drivers.contract import SourceContract
 from tests.drivers.peers import (
     FakeDrive,

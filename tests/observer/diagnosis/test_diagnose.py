@@ -14,11 +14,11 @@ import math
 import numpy as np
 import pytest
 
-from observer.diagnose import NONE, UNEXPLAINED, diagnose, noise_floor
-from observer.effects import LIBRARY, Combination
-from observer.motor import P12, TRACTION_60V
+from observer.diagnosis.diagnose import NONE, UNEXPLAINED, diagnose, noise_floor
+from observer.diagnosis.effects import LIBRARY, Combination
+from observer.estimation.motor import P12, TRACTION_60V
 from observer.recording import Recording
-from observer.simulate import simulate
+from observer.simulation.simulate import simulate
 
 DURATION_S = 10.0
 RATE_HZ = 2000.0

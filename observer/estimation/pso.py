@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from observer import kernels
+from observer.estimation import kernels
 
 CostFunction = Callable[[np.ndarray], np.ndarray]
 """A swarm cost: ``(n_particles, n_params) -> (n_particles,)``."""

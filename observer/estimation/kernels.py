@@ -3,7 +3,7 @@
 Everything here is a pure function over arrays, compiled with
 ``@njit(nogil=True, cache=True)`` so that the observer thread releases the GIL
 while it estimates and acquisition never stalls. The Python objects that drive
-these kernels live in :mod:`observer.pso` and :mod:`observer.estimate`.
+these kernels live in :mod:`observer.estimation.pso` and :mod:`observer.estimation.estimate`.
 
 Discretisation
 --------------

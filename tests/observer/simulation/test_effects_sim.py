@@ -5,9 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from observer.effects_sim import DEFAULT_MAGNITUDES, delayed, parse_effects, plant_effects
-from observer.motor import P12
-from observer.simulate import simulate
+from observer.estimation.motor import P12
+from observer.simulation.effects_sim import (
+    DEFAULT_MAGNITUDES,
+    delayed,
+    parse_effects,
+    plant_effects,
+)
+from observer.simulation.simulate import simulate
 
 
 def test_parse_effects():

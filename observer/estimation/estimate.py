@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from observer import kernels
-from observer.pso import ParticleSwarm, PSOResult
+from observer.estimation import kernels
+from observer.estimation.pso import ParticleSwarm, PSOResult
 
 log = logging.getLogger(__name__)
 
@@ -512,7 +512,7 @@ def estimate_field(
     search_range : SearchRange, optional
         Defaults to :func:`field_search_range` of the data.
     n_particles, max_iterations, schedule, w, rng, tol
-        Swarm settings, see :class:`observer.pso.ParticleSwarm`.
+        Swarm settings, see :class:`observer.estimation.pso.ParticleSwarm`.
     x0, init_range, explore_fraction
         Warm start: previous ``(R, L)``, the shrunken range to initialise most
         particles in, and the fraction that still explores all of ``search_range``.

@@ -6,7 +6,7 @@ neutral value (zero). The kernels simulate the measured field and armature
 currents over a set of segments of the recording (each segment restarts the
 simulation, so a model can be fitted on some segments and scored on others),
 and return the residual. Linear parameters are projected out as in
-:mod:`observer.kernels`: the armature's ``K`` (shared by all segments) and its
+:mod:`observer.estimation.kernels`: the armature's ``K`` (shared by all segments) and its
 initial current (one per segment).
 
 Model (per sample period ``dt``, voltages held)::

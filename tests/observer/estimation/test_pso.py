@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from observer.pso import ParticleSwarm, PSOResult, coefficients, minimize
+from observer.estimation.pso import ParticleSwarm, PSOResult, coefficients, minimize
 
 
 def sphere(x: np.ndarray) -> np.ndarray:

@@ -6,7 +6,7 @@ motor-specific configuration is needed), the circuits it changes, a one-line
 explanation and the equation it adds to the plain model. Effects compose with
 ``+`` into a :class:`Combination` (the union of their parameters), as
 pysindy's feature libraries do. The numeric model they parameterise is the
-full vector of :mod:`observer.diagnose_kernels`: an effect only says which of
+full vector of :mod:`observer.diagnosis.kernels`: an effect only says which of
 its entries it frees, by name.
 """
 
@@ -52,7 +52,7 @@ class Parameter:
     Attributes
     ----------
     name : str
-        Entry of :data:`observer.diagnose_kernels.FULL_PARAMS`.
+        Entry of :data:`observer.diagnosis.kernels.FULL_PARAMS`.
     unit : str
     low, high : float
         Search bounds.

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from observer import diagnose_kernels as dk
-from observer.diagnose import CURRENT_CHANNEL, Diagnosis, Finding, binned_structure
+from observer.diagnosis import kernels as dk
+from observer.diagnosis.diagnose import CURRENT_CHANNEL, Diagnosis, Finding, binned_structure
 
 
 def _png(fig: Any) -> str:

@@ -11,9 +11,9 @@ from mcap.reader import make_reader
 
 from drivers.base import SampleBlock, Source, SourceClosed
 from observer.config import Config, LogConfig, ObserverConfig, ZenohConfig
-from observer.daemon import Daemon
-from observer.mcaplog import McapLog, recover
 from observer.recording import read_recording
+from observer.service.daemon import Daemon
+from observer.service.mcaplog import McapLog, recover
 from replay.source import iter_mcap_blocks
 
 OBS = ObserverConfig(

@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from observer.motor import P12
+from observer.estimation.motor import P12
 from observer.recording import Recording, read_recording, write_recording
-from observer.simulate import simulate
+from observer.simulation.simulate import simulate
 from replay.source import iter_mcap_blocks
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 RA_RISE = 1.10
 SEGMENT_S = 8.0
 

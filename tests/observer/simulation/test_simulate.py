@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from observer.motor import P12, MotorParameters
-from observer.simulate import NoiseLevels, simulate
+from observer.estimation.motor import P12, MotorParameters
+from observer.simulation.simulate import NoiseLevels, simulate
 
 
 def test_same_seed_same_recording_and_metadata():

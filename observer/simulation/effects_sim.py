@@ -1,8 +1,8 @@
 """Physics the plain model leaves out, for simulated recordings that carry it.
 
-The plain model (:mod:`observer.motor`) is linear: constant resistances, a flux
+The plain model (:mod:`observer.estimation.motor`) is linear: constant resistances, a flux
 proportional to the field current, no contact drop. Real machines are not, and
-the diagnosis (:mod:`observer.diagnose`) has to be proved on recordings where
+the diagnosis (:mod:`observer.diagnosis.diagnose`) has to be proved on recordings where
 each departure is known. This module adds them to the drive simulator:
 
 ``field_saturation``
@@ -43,8 +43,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from observer.kernels import drive_controller_step
-from observer.motor import MotorParameters
+from observer.estimation.kernels import drive_controller_step
+from observer.estimation.motor import MotorParameters
 
 EFFECT_NAMES = (
     "field_saturation",
@@ -258,7 +258,7 @@ def simulate_drive_effects(
     state0: np.ndarray,
     effects: np.ndarray,
 ) -> np.ndarray:
-    """The drive of :func:`observer.kernels.simulate_drive` with a non-ideal plant.
+    """The drive of :func:`observer.estimation.kernels.simulate_drive` with a non-ideal plant.
 
     Same controllers (run once per sample on the noisy measurements, back-EMF
     feed-forward with the nominal ``K``); the plant carries the effects of

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drivers.base import SampleBlock
-from observer.ringbuffer import RingBuffer
+from observer.service.ringbuffer import RingBuffer
 
 CH = ("va", "ia")
 

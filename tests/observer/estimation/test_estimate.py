@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from observer import kernels
 from observer.config import EstimateConfig, SearchRangeConfig
-from observer.estimate import (
+from observer.estimation import kernels
+from observer.estimation.estimate import (
     EstimationError,
     SearchRange,
     armature_search_range,
@@ -18,8 +18,8 @@ from observer.estimate import (
     estimate_recording,
     field_search_range,
 )
-from observer.motor import P12, TRACTION_60V
-from observer.simulate import simulate
+from observer.estimation.motor import P12, TRACTION_60V
+from observer.simulation.simulate import simulate
 
 
 def _rel(estimate: float, truth: float) -> float:
@@ -158,8 +158,8 @@ def test_swarm_on_a_flat_wall_restarts_and_noise_fit_needs_a_time_constant():
     cost there is flat in L, and the input-noise fit divided by ~0 (3e42 V^2),
     which drove Ra to its lower bound. Both are guarded now."""
     from bench.common import p12_window
-    from observer.estimate import input_noise_variance
-    from observer.simulate import NoiseLevels
+    from observer.estimation.estimate import input_noise_variance
+    from observer.simulation.simulate import NoiseLevels
 
     w = p12_window(2059, noise=NoiseLevels(ia=0.006))
     est = estimate_armature(w.va, w.ia, w.i_f, w.omega, w.dt, rng=2059)

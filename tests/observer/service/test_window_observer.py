@@ -7,9 +7,9 @@ import pytest
 
 from drivers.base import SampleBlock
 from observer.config import ObserverConfig, QualityConfig
-from observer.motor import P12
-from observer.observer import SlidingWindowObserver, check_window
-from observer.ringbuffer import RingBuffer
+from observer.estimation.motor import P12
+from observer.service.ringbuffer import RingBuffer
+from observer.service.window_observer import SlidingWindowObserver, check_window
 
 FAST = dict(
     window_s=1.0, hop_s=0.5, cold_particles=30, cold_iterations=20,
@@ -108,7 +108,7 @@ def test_held_parameter_keeps_its_last_accepted_value(p12_run):
 
 
 def test_check_window_reasons():
-    from observer.ringbuffer import Window
+    from observer.service.ringbuffer import Window
 
     t = np.arange(100, dtype=np.int64) * 1000
     ok = {"va": np.sin(np.arange(100.0)), "vf": np.full(100, np.nan)}
@@ -190,7 +190,7 @@ def test_faults_skip_windows_flag_them_and_estimation_resumes(p12_recording):
 
 
 def test_window_shorter_than_a_few_field_time_constants_is_reported():
-    from observer import kernels
+    from observer.estimation import kernels
 
     rng = np.random.default_rng(2)
     dt, n = 1e-3, 4000

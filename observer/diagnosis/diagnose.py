@@ -3,8 +3,8 @@
 Four steps, on a recording with ``va, ia, vf, if, omega``:
 
 1. **Baseline**: the plain model (field RL; armature RL + ``K*if*omega``) fitted
-   to the whole recording by :func:`observer.estimate.estimate_field` and
-   :func:`~observer.estimate.estimate_armature`, *without* the
+   to the whole recording by :func:`observer.estimation.estimate.estimate_field` and
+   :func:`~observer.estimation.estimate.estimate_armature`, *without* the
    errors-in-variables compensation: that compensation reads an input-noise
    variance from the residual's autocorrelation, and an unmodelled effect's
    slow structure is read as (a lot of) input noise, which drives ``La`` to
@@ -16,7 +16,7 @@ Four steps, on a recording with ``va, ia, vf, if, omega``:
    windows and in bins of operating conditions (field current, ``|ia|``, sign
    of ``ia``, speed, time / accumulated losses, current slope), with bin means
    judged against the floor's variance for that many *correlated* samples.
-3. **Explain**: every effect of :data:`observer.effects.LIBRARY` extends the
+3. **Explain**: every effect of :data:`observer.diagnosis.effects.LIBRARY` extends the
    model with a few physical parameters, fitted by the paper's PSO warm-started
    from the baseline and polished by Levenberg-Marquardt, on half the
    recording's segments. It is scored on the other half (segment by segment, so
@@ -41,15 +41,22 @@ from typing import Any
 
 import numpy as np
 
-from observer import diagnose_kernels as dk
-from observer.effects import LIBRARY, Combination, DataContext, Effect, Parameter, context_from
-from observer.estimate import (
+from observer.diagnosis import kernels as dk
+from observer.diagnosis.effects import (
+    LIBRARY,
+    Combination,
+    DataContext,
+    Effect,
+    Parameter,
+    context_from,
+)
+from observer.estimation.estimate import (
     CircuitEstimate,
     EstimationError,
     estimate_armature,
     estimate_field,
 )
-from observer.pso import ParticleSwarm
+from observer.estimation.pso import ParticleSwarm
 
 log = logging.getLogger(__name__)
 
@@ -645,7 +652,7 @@ def _fit(
     rng: np.random.Generator,
     polish: bool = True,
 ) -> _Fit:
-    from observer.estimate import _levenberg_marquardt
+    from observer.estimation.estimate import _levenberg_marquardt
 
     w = {c: weights[c] for c in model.circuits}
 
@@ -761,7 +768,7 @@ def diagnose(
     rec : Recording
         With channels ``va, ia, vf, if, omega``.
     effects : sequence of str, optional
-        Names from :data:`observer.effects.LIBRARY` to test (default: all).
+        Names from :data:`observer.diagnosis.effects.LIBRARY` to test (default: all).
     n_particles, iterations : int
         Swarm of each extension's fit (warm-started from the baseline).
     baseline_particles, baseline_iterations : int

@@ -7,7 +7,7 @@ Threads:
 * **observer** waits for the data to reach the next window's end, estimates,
   publishes, queues the raw samples and results for the log, emits health and
   pings the systemd watchdog (so a hung estimator gets the service restarted);
-* **mcap-log** (in :class:`observer.mcaplog.McapLog`) writes the file;
+* **mcap-log** (in :class:`observer.service.mcaplog.McapLog`) writes the file;
 * zenoh's own threads.
 
 Start order: log, Zenoh, observer, acquisition; :meth:`Daemon.stop` stops them
@@ -26,11 +26,11 @@ from pathlib import Path
 from typing import Any
 
 from drivers import Source, SourceClosed, source_class
-from observer import sdnotify
 from observer.config import Config
-from observer.mcaplog import McapLog, to_json
-from observer.observer import SlidingWindowObserver, WindowResult
-from observer.ringbuffer import RingBuffer
+from observer.service import sdnotify
+from observer.service.mcaplog import McapLog, to_json
+from observer.service.ringbuffer import RingBuffer
+from observer.service.window_observer import SlidingWindowObserver, WindowResult
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +62,7 @@ class Daemon:
         on_estimate: Callable[[dict[str, Any]], None] | None = None,
         sample_rate_hint_hz: float = 20_000.0,
     ) -> None:
-        from observer.zenohpub import ZenohPublisher
+        from observer.service.zenohpub import ZenohPublisher
 
         self.config = config
         self.source = source

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from observer import kernels
+from observer.estimation import kernels
 
 
 def test_rl_step_response_matches_analytic_solution():

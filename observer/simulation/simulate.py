@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from observer import kernels
-from observer.motor import P12, MotorParameters
+from observer.estimation import kernels
+from observer.estimation.motor import P12, MotorParameters
 from observer.recording import Recording
 
 # (name, duration s, speed / rated, load torque / rated, field voltage / rated)
@@ -160,8 +160,8 @@ def simulate(
         Seed of the duty-cycle draws and the noise; same seed, same recording.
     effects : mapping of str to float, optional
         Physics the plain model leaves out, by name with a magnitude (see
-        :mod:`observer.effects_sim`), e.g. ``{"brush_drop": 1.0}``. Without it
-        the plant is the plain model of :func:`observer.kernels.simulate_drive`.
+        :mod:`observer.simulation.effects_sim`), e.g. ``{"brush_drop": 1.0}``. Without it
+        the plant is the plain model of :func:`observer.estimation.kernels.simulate_drive`.
 
     Returns
     -------
@@ -188,7 +188,7 @@ def simulate(
     state0 = np.array([field[0] / motor.field_resistance_ohm, 0.0, 0.0])
     fx_meta = None
     if effects:
-        from observer import effects_sim
+        from observer.simulation import effects_sim
 
         fx = effects_sim.plant_effects(motor, effects, dt)
         if fx.eddy_coupling > 0:

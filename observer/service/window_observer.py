@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from observer.config import ObserverConfig
-from observer.estimate import (
+from observer.estimation.estimate import (
     CircuitEstimate,
     EstimationError,
     SearchRange,
@@ -47,7 +47,7 @@ from observer.estimate import (
     estimate_field,
     field_search_range,
 )
-from observer.ringbuffer import RingBuffer, Window
+from observer.service.ringbuffer import RingBuffer, Window
 
 log = logging.getLogger(__name__)
 
@@ -433,9 +433,9 @@ class SlidingWindowObserver:
 
 def warm_up_kernels() -> float:
     """Compile (or load from the numba cache) every kernel the observer uses; seconds taken."""
-    from observer import kernels
-    from observer.motor import P12
-    from observer.simulate import simulate
+    from observer.estimation import kernels
+    from observer.estimation.motor import P12
+    from observer.simulation.simulate import simulate
 
     started = time.monotonic()
     rec = simulate(P12, duration_s=0.2, sample_rate_hz=1000.0, noise=0.002, seed=0)

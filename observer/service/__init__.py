@@ -1,0 +1,14 @@
+"""The live service: source -> ring buffer -> sliding-window observer -> Zenoh and MCAP.
+
+Start with :class:`observer.service.daemon.Daemon` (threads, start and stop
+order); a sample enters in :class:`observer.service.ringbuffer.RingBuffer`, is
+estimated window by window in
+:class:`observer.service.window_observer.SlidingWindowObserver`, and leaves
+through :mod:`observer.service.zenohpub` and :mod:`observer.service.mcaplog`;
+:mod:`observer.service.sdnotify` talks to systemd.
+
+Import rule: this package may import ``observer.service``,
+``observer.estimation``, ``observer.recording``, ``observer.config`` and
+``drivers``; never the simulator, the diagnosis or the CLI (checked by
+``tests/test_architecture.py``).
+"""
