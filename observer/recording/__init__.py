@@ -1,32 +1,37 @@
 """Recordings of DC-motor winding signals: the in-memory type and its files.
 
-Start with :class:`Recording` (:mod:`observer.recording.base`) and
+Start with :class:`Recording` (:mod:`observer.recording.base`), then
 :func:`read_recording` / :func:`write_recording` below, which pick the format
-by the file name.
+by the file name: CSV (:mod:`~observer.recording.csv_format`) or MCAP
+(:mod:`~observer.recording.mcap_reader`, :mod:`~observer.recording.mcap_writer`,
+carrying the messages of :mod:`~observer.recording.sample_block`).
 
 Import rule: this package imports only ``observer.recording`` and
 ``observer.config`` (checked by ``tests/test_architecture.py``).
 """
 
+from __future__ import annotations
+
+import os
+
 from observer.recording.base import (
     CHANNELS,
+    UNITS,
+    PathArg,
+    Recording,
+    RecordingError,
+    validate_timebase,
+)
+from observer.recording.csv_format import read_csv, write_csv
+from observer.recording.mcap_reader import McapRecordStream, read_mcap
+from observer.recording.mcap_writer import write_mcap
+from observer.recording.sample_block import (
     METADATA_NAME,
     SAMPLE_BLOCK_SCHEMA,
     SAMPLES_SCHEMA_NAME,
     SAMPLES_TOPIC,
-    UNITS,
-    McapRecordStream,
-    Recording,
-    RecordingError,
     parse_sample_block,
-    read_csv,
-    read_mcap,
-    read_recording,
     sample_block_message,
-    validate_timebase,
-    write_csv,
-    write_mcap,
-    write_recording,
 )
 
 __all__ = [
@@ -49,3 +54,55 @@ __all__ = [
     "write_mcap",
     "write_recording",
 ]
+
+
+def _format_of(path: PathArg) -> str:
+    lower = os.fspath(path).lower()
+    if lower.endswith((".csv", ".csv.gz")):
+        return "csv"
+    if lower.endswith(".mcap"):
+        return "mcap"
+    raise RecordingError(
+        "unsupported file type: expected a name ending in .csv, .csv.gz or .mcap", path=path
+    )
+
+
+def read_recording(path: PathArg) -> Recording:
+    """Read a recording, choosing the format by the file name.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.csv``, ``.csv.gz`` or ``.mcap`` file.
+
+    Raises
+    ------
+    RecordingError
+        For any other suffix, or when the file is unreadable or invalid.
+    """
+    if _format_of(path) == "csv":
+        return read_csv(path)
+    return read_mcap(path)
+
+
+def write_recording(rec: Recording, path: PathArg, *, block_s: float = 0.1) -> None:
+    """Write a recording, choosing the format by the file name.
+
+    Parameters
+    ----------
+    rec : Recording
+        The recording.
+    path : str or os.PathLike
+        A ``.csv``, ``.csv.gz`` or ``.mcap`` file; overwritten if it exists.
+    block_s : float
+        MCAP only: duration of the samples in one message (s).
+
+    Raises
+    ------
+    RecordingError
+        For any other suffix, or when the file cannot be written.
+    """
+    if _format_of(path) == "csv":
+        write_csv(rec, path)
+    else:
+        write_mcap(rec, path, block_s=block_s)
