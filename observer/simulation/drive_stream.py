@@ -1,7 +1,7 @@
 """An endless, continuous stream of simulated drive samples, generated in chunks.
 
 The fake drives (``dcobserver fake-drive``) need samples forever, in real
-time. :class:`DriveStream` runs :func:`observer.estimation.kernels.simulate_drive` one
+time. :class:`DriveStream` runs :func:`observer.simulation.kernels.simulate_drive` one
 duty cycle (``chunk_s``) at a time and carries the plant state (field current,
 armature current, speed) from one chunk to the next, so the motor's
 trajectory is continuous: only the drive's controller integrators restart at
@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from observer.estimation import kernels
 from observer.estimation.motor import P12, MotorParameters
+from observer.simulation import kernels
 from observer.simulation.simulate import (
     NoiseLevels,
     controller_gains,

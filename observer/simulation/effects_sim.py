@@ -43,8 +43,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from observer.estimation.kernels import drive_controller_step
 from observer.estimation.motor import MotorParameters
+from observer.simulation.kernels import drive_controller_step
 
 EFFECT_NAMES = (
     "field_saturation",
@@ -258,7 +258,7 @@ def simulate_drive_effects(
     state0: np.ndarray,
     effects: np.ndarray,
 ) -> np.ndarray:
-    """The drive of :func:`observer.estimation.kernels.simulate_drive` with a non-ideal plant.
+    """The drive of :func:`observer.simulation.kernels.simulate_drive` with a non-ideal plant.
 
     Same controllers (run once per sample on the noisy measurements, back-EMF
     feed-forward with the nominal ``K``); the plant carries the effects of

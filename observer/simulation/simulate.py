@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from observer.estimation import kernels
 from observer.estimation.motor import P12, MotorParameters
 from observer.recording import Recording
+from observer.simulation import kernels
 
 # (name, duration s, speed / rated, load torque / rated, field voltage / rated)
 DUTY_CYCLE: tuple[tuple[str, float, float, float, float], ...] = (
@@ -161,7 +161,7 @@ def simulate(
     effects : mapping of str to float, optional
         Physics the plain model leaves out, by name with a magnitude (see
         :mod:`observer.simulation.effects_sim`), e.g. ``{"brush_drop": 1.0}``. Without it
-        the plant is the plain model of :func:`observer.estimation.kernels.simulate_drive`.
+        the plant is the plain model of :func:`observer.simulation.kernels.simulate_drive`.
 
     Returns
     -------
