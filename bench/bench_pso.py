@@ -40,12 +40,13 @@ from bench.common import (
     machine_description,
     p12_window,
 )
-from observer.estimation import kernels, pso
-from observer.estimation.estimate import (
+from observer.estimation import (
     CircuitEstimate,
     estimate_armature,
     estimate_field,
     field_search_range,
+    kernels,
+    pso,
 )
 from observer.estimation.motor import P12
 from observer.simulation.simulate import NoiseLevels

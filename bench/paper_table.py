@@ -41,8 +41,7 @@ from bench.common import (
     machine_description,
     p12_window,
 )
-from observer.estimation import kernels
-from observer.estimation.estimate import CircuitEstimate, estimate_armature, estimate_field
+from observer.estimation import CircuitEstimate, estimate_armature, estimate_field, kernels
 from observer.estimation.pso import SCHEDULES
 
 PARAMETERS = ("Rf", "Lf", "Ra", "La", "K")

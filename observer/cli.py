@@ -57,7 +57,7 @@ def _user_error_types() -> tuple[type[BaseException], ...]:
     # commands raise ``observer.cli.UserError``, a different class object.
     from observer.cli import UserError as imported_user_error
     from observer.config import ConfigError
-    from observer.estimation.estimate import EstimationError
+    from observer.estimation import EstimationError
 
     types: list[type[BaseException]] = [
         UserError,

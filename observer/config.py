@@ -102,7 +102,7 @@ class QualityConfig:
     """Largest one-sigma relative uncertainty for an estimate to be accepted.
 
     The uncertainty is the estimator's ``std`` (sandwich covariance with the
-    errors-in-variables correction, see :mod:`observer.estimation.estimate`); on 1 s windows
+    errors-in-variables correction, see :mod:`observer.estimation.armature`); on 1 s windows
     of the P-12 at 2 kHz and 0.2 % noise its median is 0.16 % for Ra, 5.5 % for
     La and 0.03 % for K, and 0.5 where the window does not identify the armature.
 

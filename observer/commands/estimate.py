@@ -34,7 +34,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
     from observer.config import EstimateConfig, load_config
-    from observer.estimation.estimate import estimate_recording
+    from observer.estimation import estimate_recording
     from observer.recording import read_recording
 
     settings = load_config(args.config).estimate if args.config else EstimateConfig()

@@ -3,8 +3,8 @@
 Four steps, on a recording with ``va, ia, vf, if, omega``:
 
 1. **Baseline**: the plain model (field RL; armature RL + ``K*if*omega``) fitted
-   to the whole recording by :func:`observer.estimation.estimate.estimate_field` and
-   :func:`~observer.estimation.estimate.estimate_armature`, *without* the
+   to the whole recording by :func:`observer.estimation.field.estimate_field` and
+   :func:`~observer.estimation.armature.estimate_armature`, *without* the
    errors-in-variables compensation: that compensation reads an input-noise
    variance from the residual's autocorrelation, and an unmodelled effect's
    slow structure is read as (a lot of) input noise, which drives ``La`` to
@@ -50,7 +50,7 @@ from observer.diagnosis.effects import (
     Parameter,
     context_from,
 )
-from observer.estimation.estimate import (
+from observer.estimation import (
     CircuitEstimate,
     EstimationError,
     estimate_armature,
@@ -652,7 +652,7 @@ def _fit(
     rng: np.random.Generator,
     polish: bool = True,
 ) -> _Fit:
-    from observer.estimation.estimate import _levenberg_marquardt
+    from observer.estimation.polish import levenberg_marquardt
 
     w = {c: weights[c] for c in model.circuits}
 
@@ -691,7 +691,7 @@ def _fit(
         return np.concatenate(parts)
 
     if polish:
-        x, r, _ = _levenberg_marquardt(residual, x.copy(), max_iterations=40)
+        x, r, _ = levenberg_marquardt(residual, x.copy(), max_iterations=40)
         x = np.clip(x, model.lower, model.upper)
     full = model.to_full(x)[0]
     rf, ra, k = data.residuals(full, starts, stops)

@@ -1,10 +1,17 @@
 """Estimation of the winding parameters: motor model, numba kernels, PSO and estimators.
 
-Start with :func:`estimate_field` and :func:`estimate_armature`
-(:mod:`observer.estimation.estimate`); the exact discrete winding models and
-the swarm costs are the numba kernels of :mod:`observer.estimation.kernels`,
-the paper's swarm is :mod:`observer.estimation.pso`, and the machine's
-parameters are :mod:`observer.estimation.motor`.
+Start with :func:`estimate_field` (:mod:`~observer.estimation.field`) and
+:func:`estimate_armature` (:mod:`~observer.estimation.armature`, four stages:
+swarm, polish, errors-in-variables compensation, uncertainty), and
+:func:`estimate_recording` (:mod:`~observer.estimation.estimate`) for a whole
+recording. They build on the search ranges and signal checks of
+:mod:`~observer.estimation.ranges`, the swarm of :mod:`~observer.estimation.swarm`
+(the paper's PSO is :mod:`~observer.estimation.pso`), the Levenberg-Marquardt
+polish of :mod:`~observer.estimation.polish` and the bounds of
+:mod:`~observer.estimation.uncertainty`; they return a
+:class:`~observer.estimation.result.CircuitEstimate`. The exact discrete winding
+models and swarm costs are the numba kernels of :mod:`~observer.estimation.kernels`;
+the machine's parameters are :mod:`~observer.estimation.motor`.
 
 Import rule: this package imports only ``observer.estimation`` and
 ``observer.config`` (checked by ``tests/test_architecture.py``).
@@ -19,17 +26,11 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from observer.estimation.armature import estimate_armature as estimate_armature
     from observer.estimation.estimate import CIRCUIT_CHANNELS as CIRCUIT_CHANNELS
     from observer.estimation.estimate import CIRCUITS as CIRCUITS
-    from observer.estimation.estimate import CircuitEstimate as CircuitEstimate
-    from observer.estimation.estimate import EstimationError as EstimationError
-    from observer.estimation.estimate import SearchRange as SearchRange
-    from observer.estimation.estimate import armature_search_range as armature_search_range
-    from observer.estimation.estimate import estimate_armature as estimate_armature
-    from observer.estimation.estimate import estimate_field as estimate_field
     from observer.estimation.estimate import estimate_recording as estimate_recording
-    from observer.estimation.estimate import field_search_range as field_search_range
-    from observer.estimation.estimate import input_noise_variance as input_noise_variance
+    from observer.estimation.field import estimate_field as estimate_field
     from observer.estimation.motor import MOTORS as MOTORS
     from observer.estimation.motor import P12 as P12
     from observer.estimation.motor import TRACTION_60V as TRACTION_60V
@@ -38,28 +39,34 @@ if TYPE_CHECKING:
     from observer.estimation.pso import ParticleSwarm as ParticleSwarm
     from observer.estimation.pso import PSOResult as PSOResult
     from observer.estimation.pso import minimize as minimize
+    from observer.estimation.ranges import EstimationError as EstimationError
+    from observer.estimation.ranges import SearchRange as SearchRange
+    from observer.estimation.ranges import armature_search_range as armature_search_range
+    from observer.estimation.ranges import field_search_range as field_search_range
+    from observer.estimation.result import CircuitEstimate as CircuitEstimate
+    from observer.estimation.uncertainty import input_noise_variance as input_noise_variance
 
 #: Public name -> the module of this package that defines it.
 _EXPORTS: dict[str, str] = {
+    "estimate_armature": "armature",
     "CIRCUITS": "estimate",
     "CIRCUIT_CHANNELS": "estimate",
-    "CircuitEstimate": "estimate",
-    "EstimationError": "estimate",
-    "SearchRange": "estimate",
-    "armature_search_range": "estimate",
-    "estimate_armature": "estimate",
-    "estimate_field": "estimate",
     "estimate_recording": "estimate",
-    "field_search_range": "estimate",
-    "input_noise_variance": "estimate",
+    "estimate_field": "field",
     "MOTORS": "motor",
     "P12": "motor",
     "TRACTION_60V": "motor",
     "MotorParameters": "motor",
     "SCHEDULES": "pso",
-    "ParticleSwarm": "pso",
     "PSOResult": "pso",
+    "ParticleSwarm": "pso",
     "minimize": "pso",
+    "EstimationError": "ranges",
+    "SearchRange": "ranges",
+    "armature_search_range": "ranges",
+    "field_search_range": "ranges",
+    "CircuitEstimate": "result",
+    "input_noise_variance": "uncertainty",
 }
 
 __all__ = sorted(_EXPORTS)

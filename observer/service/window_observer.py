@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from observer.config import ObserverConfig
-from observer.estimation.estimate import (
+from observer.estimation import (
     CircuitEstimate,
     EstimationError,
     SearchRange,

@@ -19,7 +19,7 @@ from drivers import source_class
 from drivers.base import SourceError
 from drivers.can_bus import P12_DBC, CanOptions, CanSource
 from drivers.fake_drive import CanFakeDrive
-from observer.estimation.estimate import estimate_recording
+from observer.estimation import estimate_recording
 from observer.estimation.motor import P12
 from observer.recording import read_recording
 from observer.simulation.drive_stream import DriveStream

@@ -13,7 +13,7 @@ from drivers.fake_drive import MODBUS_INT16_BASE, MODBUS_OMEGA_INT32
 from drivers.modbus import ModbusOptions, ModbusSource, RegisterSpec
 from drivers.serial_adc import SERIAL_P12_SCALE
 from observer.config import ConfigError
-from observer.estimation.estimate import estimate_recording
+from observer.estimation import estimate_recording
 from observer.estimation.motor import P12
 from tests.drivers.contract import SourceContract
 from tests.drivers.peers import (

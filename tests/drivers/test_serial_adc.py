@@ -19,7 +19,7 @@ from drivers.serial_adc import (
     encode_frame,
     frame_size,
 )
-from observer.estimation.estimate import estimate_recording
+from observer.estimation import estimate_recording
 from observer.estimation.motor import P12
 from tests.drivers.contract import SourceContract
 from tests.drivers.peers import (

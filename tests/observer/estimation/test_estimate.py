@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from observer.config import EstimateConfig, SearchRangeConfig
-from observer.estimation import kernels
-from observer.estimation.estimate import (
+from observer.estimation import (
     EstimationError,
     SearchRange,
     armature_search_range,
@@ -17,6 +16,7 @@ from observer.estimation.estimate import (
     estimate_field,
     estimate_recording,
     field_search_range,
+    kernels,
 )
 from observer.estimation.motor import P12, TRACTION_60V
 from observer.simulation.simulate import simulate
@@ -158,7 +158,7 @@ def test_swarm_on_a_flat_wall_restarts_and_noise_fit_needs_a_time_constant():
     cost there is flat in L, and the input-noise fit divided by ~0 (3e42 V^2),
     which drove Ra to its lower bound. Both are guarded now."""
     from bench.common import p12_window
-    from observer.estimation.estimate import input_noise_variance
+    from observer.estimation import input_noise_variance
     from observer.simulation.simulate import NoiseLevels
 
     w = p12_window(2059, noise=NoiseLevels(ia=0.006))

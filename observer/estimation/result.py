@@ -1,0 +1,86 @@
+"""The estimate of one winding, as every estimator returns it."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from observer.estimation.pso import PSOResult
+from observer.estimation.ranges import SearchRange
+
+
+@dataclass(frozen=True)
+class CircuitEstimate:
+    """Estimated parameters of one winding.
+
+    Attributes
+    ----------
+    circuit : {"field", "armature"}
+    resistance_ohm, inductance_h : float
+    emf_constant_h : float or None
+        ``K`` of ``K*if*omega`` (armature only; V*s/(rad*A)).
+    initial_current_a : float
+        Fitted current at the window's first sample.
+    rms_a : float
+        Root-mean-square current error of the fit (A).
+    std : dict
+        One-sigma uncertainty per parameter (``R``, ``L``, ``K``): the Cramer-Rao
+        bound from the Fisher information at the optimum with the fit's residual
+        variance; for the armature combined with the size of the errors-in-variables
+        correction (the bound alone ignores noise on the measured voltages).
+    n_samples : int
+    search_range : SearchRange
+    pso : PSOResult
+        The swarm search (its ``x`` is ``log10 (R, L)``).
+    polished : bool
+        Whether Levenberg-Marquardt refined the swarm's best.
+    input_noise_var : float
+        Variance (V^2) of white noise on the model's input voltage found in the
+        residual and compensated (0: none found, or compensation off).
+    """
+
+    circuit: str
+    resistance_ohm: float
+    inductance_h: float
+    emf_constant_h: float | None
+    initial_current_a: float
+    rms_a: float
+    std: Mapping[str, float]
+    n_samples: int
+    search_range: SearchRange
+    pso: PSOResult = field(repr=False)
+    polished: bool = True
+    input_noise_var: float = 0.0
+
+    @property
+    def time_constant_s(self) -> float:
+        return self.inductance_h / self.resistance_ohm
+
+    def relative_std(self, name: str) -> float:
+        """``std[name] / |value|``: e.g. > 0.05 means the window hardly identifies it."""
+        value = {"R": self.resistance_ohm, "L": self.inductance_h, "K": self.emf_constant_h}[name]
+        if value is None or value == 0:
+            return math.inf
+        return self.std[name] / abs(value)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary: ``R, L, (K), rms, std, rel_std, ...``."""
+        out: dict[str, Any] = {"R": self.resistance_ohm, "L": self.inductance_h}
+        if self.emf_constant_h is not None:
+            out["K"] = self.emf_constant_h
+        out["tau"] = self.time_constant_s
+        out["rms"] = self.rms_a
+        out["std"] = dict(self.std)
+        out["rel_std"] = {name: self.relative_std(name) for name in self.std}
+        out["i0"] = self.initial_current_a
+        out["n_samples"] = self.n_samples
+        out["input_noise_var"] = self.input_noise_var
+        out["iterations"] = self.pso.n_iterations
+        out["evaluations"] = self.pso.n_evaluations
+        out["search_range"] = {
+            "R": list(self.search_range.resistance_ohm),
+            "L": list(self.search_range.inductance_h),
+        }
+        return out
