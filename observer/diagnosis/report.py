@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from observer.diagnosis import kernels as dk
-from observer.diagnosis.diagnose import CURRENT_CHANNEL, Diagnosis, Finding, binned_structure
+from observer.diagnosis.locate import binned_structure
+from observer.diagnosis.results import CURRENT_CHANNEL, Diagnosis, Finding
 
 
 def _png(fig: Any) -> str:

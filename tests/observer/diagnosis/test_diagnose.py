@@ -14,8 +14,10 @@ import math
 import numpy as np
 import pytest
 
-from observer.diagnosis.diagnose import NONE, UNEXPLAINED, diagnose, noise_floor
+from observer.diagnosis.diagnose import diagnose
 from observer.diagnosis.effects import LIBRARY, Combination
+from observer.diagnosis.noise_floor import noise_floor
+from observer.diagnosis.results import NONE, UNEXPLAINED
 from observer.estimation.motor import P12, TRACTION_60V
 from observer.recording import Recording
 from observer.simulation.simulate import simulate

@@ -1,0 +1,56 @@
+"""What a correct model's residual looks like: white current noise plus input noise through it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from observer.diagnosis.results import NoiseFloor
+
+
+def _autocov(r: np.ndarray, max_lag: int) -> np.ndarray:
+    r = r - r.mean()
+    n = r.size
+    return np.array([r[: n - lag] @ r[lag:] / n for lag in range(max_lag + 1)])
+
+
+def noise_floor(
+    circuit: str, residual: np.ndarray, pole: float, gain: float, input_voltage: np.ndarray
+) -> NoiseFloor:
+    """Estimate the residual a correct model would leave, for one circuit.
+
+    A correct output-error model leaves ``e = n_i - G*n_v``: white current noise
+    ``n_i`` plus white input-voltage noise through the winding's response
+    ``G = gain/(1 - pole*z^-1)``, an AR(1) with autocovariance
+    ``s*pole^lag``. Slow structure from a missing effect adds an almost
+    constant autocovariance over short lags. For a fast winding (time constant
+    under 60 samples) the autocovariance at lags 1..3 tau is fitted by
+    ``c + s*pole^lag``; ``c`` is structure, ``s`` the coloured floor. For a slow
+    winding the two are not separable over short lags, so the input noise is
+    measured on the input itself: the voltage is held piecewise constant by the
+    drive, so the robust spread of its first differences is its noise.
+    """
+    r = residual[np.isfinite(residual)]
+    total = float(np.var(r))
+    tau = -1.0 / math.log(pole) if 0 < pole < 1 else math.inf
+    if tau < 60:
+        m = int(min(max(6, 3 * tau), r.size // 4))
+        acov = _autocov(r, m)
+        lags = np.arange(1, m + 1)
+        design = np.column_stack([np.ones(m), pole**lags])
+        (c_slow, s), *_ = np.linalg.lstsq(design, acov[1:], rcond=None)
+        s = max(float(s), 0.0)
+        c_slow = max(float(c_slow), 0.0)
+        white = max(float(acov[0]) - s - c_slow, 1e-3 * total)
+    else:
+        dv = np.diff(input_voltage)
+        mad = float(np.median(np.abs(dv - np.median(dv))))
+        var_v = (mad / 0.6745) ** 2 / 2.0
+        s = var_v * gain * gain / (1.0 - pole * pole) if pole < 1 else 0.0
+        acov = _autocov(r, 1)
+        white = max(float(acov[0] - acov[1]) - s * (1 - pole), 0.05 * total)
+    floor = white + s
+    tau_ar = (1 + pole) / (1 - pole) if pole < 1 else float(r.size)
+    tau_int = (white + s * tau_ar) / floor
+    return NoiseFloor(circuit, floor, white, s, pole, tau_int, total)
