@@ -39,6 +39,7 @@ import numpy as np
 
 from observer.config import ObserverConfig
 from observer.estimation import (
+    CIRCUIT_CHANNELS,
     CircuitEstimate,
     EstimationError,
     SearchRange,
@@ -47,13 +48,13 @@ from observer.estimation import (
     estimate_field,
     field_search_range,
 )
+from observer.estimation.motor import MotorParameters
 from observer.service.ringbuffer import RingBuffer, Window
 
 log = logging.getLogger(__name__)
 
 _NS = 1_000_000_000
 CIRCUIT_PARAMS = {"field": ("R", "L"), "armature": ("R", "L", "K")}
-CIRCUIT_CHANNELS = {"field": ("vf", "if"), "armature": ("va", "ia", "if", "omega")}
 _CIRCUIT_INDEX = {"field": 0, "armature": 1}
 
 
@@ -432,28 +433,71 @@ class SlidingWindowObserver:
 
 
 def warm_up_kernels() -> float:
-    """Compile (or load from the numba cache) every kernel the observer uses; seconds taken."""
+    """Compile (or load from the numba cache) every kernel the observer uses; seconds taken.
+
+    On a cold cache (a fresh clone) a kernel compiles at its first call with a
+    new signature, which takes seconds: a window that waited for that would
+    make live mode skip windows. So the estimators run here once on a small
+    synthetic window, with the very argument types the observer passes
+    (writable contiguous float64 arrays, as the ring buffer hands out: numba
+    compiles read-only ones separately, see
+    :func:`observer.estimation.ranges.kernel_array`). The window is made by the
+    estimator's own winding models, so the service needs no simulator.
+    """
     from observer.estimation import kernels
     from observer.estimation.motor import P12
-    from observer.simulation.simulate import simulate
 
     started = time.monotonic()
-    rec = simulate(P12, duration_s=0.2, sample_rate_hz=1000.0, noise=0.002, seed=0)
-    # Writable copies, as the ring buffer hands out: numba compiles read-only
-    # arrays separately, and a window must not wait for a compilation.
-    va, ia, vf, i_f, omega = (np.array(rec[c]) for c in ("va", "ia", "vf", "if", "omega"))
+    dt = 1e-3
+    va, ia, vf, i_f, omega = _synthetic_windings(P12, n=200, dt=dt)
     # The compensated swarm's call, whatever the fits below reach.
     emf = kernels.emf_input(i_f, omega)
     x = np.log10([[3.5, 0.02]])
-    kernels.armature_swarm_costs(x, va, emf, ia, rec.dt, True, float("nan"), 0.5)
-    kernels.rl_swarm_costs(x, vf, i_f, rec.dt, True, 0.5)
+    kernels.armature_swarm_costs(x, va, emf, ia, dt, True, float("nan"), 0.5)
+    kernels.rl_swarm_costs(x, vf, i_f, dt, True, 0.5)
     # Only compilation matters here: a fit of 0.2 s may fail, the kernels are loaded anyway.
     try:
-        estimate_field(vf, i_f, rec.dt, n_particles=4, max_iterations=2, rng=0)
+        estimate_field(vf, i_f, dt, n_particles=4, max_iterations=2, rng=0)
     except (ArithmeticError, ValueError):
         pass
     try:
-        estimate_armature(va, ia, i_f, omega, rec.dt, n_particles=4, max_iterations=2, rng=0)
+        estimate_armature(va, ia, i_f, omega, dt, n_particles=4, max_iterations=2, rng=0)
     except (ArithmeticError, ValueError):
         pass
     return time.monotonic() - started
+
+
+def _synthetic_windings(
+    motor: MotorParameters, *, n: int, dt: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``va, ia, vf, if, omega`` of a drive accelerating under stepped voltages, 0.2 % noise.
+
+    The currents are the exact discrete winding models
+    (:func:`~observer.estimation.kernels.simulate_rl`,
+    :func:`~observer.estimation.kernels.simulate_armature`) of ``motor``, not a
+    simulated drive: enough for every kernel to be called as in a real window.
+    """
+    from observer.estimation import kernels
+
+    rng = np.random.default_rng(0)
+    steps = np.where((np.arange(n) // 50) % 2 == 0, 1.0, 0.75)
+    vf = float(motor.rated_field_voltage_v) * steps
+    i_f0 = float(motor.rated_field_current_a)
+    i_f = kernels.simulate_rl(
+        float(motor.field_resistance_ohm), float(motor.field_inductance_h), i_f0, vf, dt
+    )
+    omega = float(motor.rated_speed_rad_s) * np.linspace(0.2, 0.6, n)
+    va = float(motor.rated_armature_voltage_v) * (0.5 + 0.25 * steps)
+    ia = kernels.simulate_armature(
+        float(motor.armature_resistance_ohm), float(motor.armature_inductance_h),
+        float(motor.emf_constant_h), 0.0, va, kernels.emf_input(i_f, omega), dt,
+    )  # fmt: skip
+    rated = (
+        motor.rated_armature_voltage_v, motor.rated_armature_current_a,
+        motor.rated_field_voltage_v, motor.rated_field_current_a, motor.rated_speed_rad_s,
+    )  # fmt: skip
+    signals = (va, ia, vf, i_f, omega)
+    va, ia, vf, i_f, omega = (
+        s + 0.002 * float(r) * rng.standard_normal(n) for s, r in zip(signals, rated, strict=True)
+    )
+    return va, ia, vf, i_f, omega

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -10,6 +15,8 @@ from observer.config import ObserverConfig, QualityConfig
 from observer.estimation.motor import P12
 from observer.service.ringbuffer import RingBuffer
 from observer.service.window_observer import SlidingWindowObserver, check_window
+
+REPO = Path(__file__).resolve().parents[3]
 
 FAST = dict(
     window_s=1.0, hop_s=0.5, cold_particles=30, cold_iterations=20,
@@ -204,3 +211,38 @@ def test_window_shorter_than_a_few_field_time_constants_is_reported():
     assert "window_short_for_field" in obs.health()["warnings"]
     obs_ok, _ = _run([block], circuits="field", window_s=1.0, hop_s=0.5)
     assert "window_short_for_field" not in obs_ok.health()["warnings"]
+
+
+def test_warm_up_compiles_every_kernel_signature_the_observer_runs():
+    """On a cold numba cache a window must not wait for a compilation (live mode would skip
+    windows): after the warm-up, running the observer compiles nothing more. In a fresh
+    process, so that no other test has compiled a signature for it."""
+    code = textwrap.dedent(
+        """
+        from observer.estimation import kernels
+        from observer.service.window_observer import warm_up_kernels
+        from tests.observer.service.test_window_observer import _blocks, _run
+
+        def compiled():
+            return {
+                name: set(f.signatures)
+                for name, f in vars(kernels).items() if hasattr(f, "signatures")
+            }
+
+        warm_up_kernels()
+        before = compiled()
+        from observer.estimation.motor import P12
+        from observer.simulation.simulate import simulate
+
+        rec = simulate(P12, duration_s=4.0, sample_rate_hz=2000.0, noise=0.002, seed=3)
+        _, results = _run(_blocks(rec))
+        assert sum(r.estimate is not None for r in results) >= 5, results
+        after = compiled()
+        added = {name: after[name] - before[name] for name in after if after[name] - before[name]}
+        assert not added, f"compiled after the warm-up: {added}"
+        """
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
