@@ -237,7 +237,6 @@ def armature_residual(
     bq = (1.0 - a) / ra0
     n_seg = starts.shape[0]
     # Per segment: sums for the Schur complement of the initial currents.
-    s_dd = 0.0
     s_de = 0.0
     s_ee = 0.0
     seg_dg = np.zeros(n_seg)
@@ -293,7 +292,6 @@ def armature_residual(
             dbuf[k] = d
             ebuf[k] = se
             gbuf[k] = sg
-            s_dd += d * d
             s_de += d * se
             s_ee += se * se
             seg_dg[s] += d * sg
@@ -303,15 +301,43 @@ def armature_residual(
             fe = a * fe + bq * e
             gg = a * g
             g = gg if abs(gg) > 1e-150 else 0.0
-    # d ~ -K*se + i0_s*sg: eliminate i0_s per segment, then K.
+    return _project_emf_and_initial_currents(
+        dbuf, ebuf, gbuf, s_de, s_ee, seg_dg, seg_eg, seg_gg, starts, stops, fit_k,
+        emf_constant, out,
+    )  # fmt: skip
+
+
+@njit(nogil=True, cache=True)
+def _project_emf_and_initial_currents(
+    d: np.ndarray,
+    e: np.ndarray,
+    g: np.ndarray,
+    s_de: float,
+    s_ee: float,
+    seg_dg: np.ndarray,
+    seg_eg: np.ndarray,
+    seg_gg: np.ndarray,
+    starts: np.ndarray,
+    stops: np.ndarray,
+    fit_k: bool,
+    emf_constant: float,
+    out: np.ndarray,
+) -> tuple[float, float]:
+    """The armature residual's second pass: ``K`` and each segment's ``i0`` projected out.
+
+    ``d`` is the current less the forced response, ``e`` the response to the
+    EMF input and ``g`` the free response (per sample); ``s_de``, ``s_ee`` and
+    the per-segment ``seg_*`` are their sums. Writes the residual into ``out``
+    (which may be ``d``) and returns ``(sse, K)``.
+    """
+    n_seg = starts.shape[0]
+    # d ~ -K*e + i0_s*g: eliminate i0_s per segment, then K.
     ee = s_ee
     de = s_de
-    dd = s_dd
     for s in range(n_seg):
         if seg_gg[s] > 0.0:
             ee -= seg_eg[s] * seg_eg[s] / seg_gg[s]
             de -= seg_dg[s] * seg_eg[s] / seg_gg[s]
-            dd -= seg_dg[s] * seg_dg[s] / seg_gg[s]
     kk = 0.0
     if fit_k and ee > 1e-300:
         kk = -de / ee
@@ -323,7 +349,7 @@ def armature_residual(
         if seg_gg[s] > 0.0:
             i0 = (seg_dg[s] + kk * seg_eg[s]) / seg_gg[s]
         for k in range(k0, k1):
-            r = dbuf[k] + kk * ebuf[k] - i0 * gbuf[k]
+            r = d[k] + kk * e[k] - i0 * g[k]
             out[k] = r
             sse += r * r
     return sse, k_out
