@@ -3,7 +3,8 @@
 Everything here is a pure function over arrays, compiled with
 ``@njit(nogil=True, cache=True)`` so that the observer thread releases the GIL
 while it estimates and acquisition never stalls. The Python objects that drive
-these kernels live in :mod:`observer.estimation.pso` and :mod:`observer.estimation.estimate`.
+these kernels live in :mod:`observer.estimation.pso`, :mod:`observer.estimation.field`
+and :mod:`observer.estimation.armature`.
 The simulated plant's kernels are apart, in :mod:`observer.simulation.kernels`:
 they simulate a drive, they do not estimate.
 
