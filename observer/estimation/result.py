@@ -39,6 +39,12 @@ class CircuitEstimate:
     input_noise_var : float
         Variance (V^2) of white noise on the model's input voltage found in the
         residual and compensated (0: none found, or compensation off).
+    describes_window : bool
+        False when the model cannot describe this window (e.g. the voltage
+        between samples is not known well enough): the values are then not
+        evidence about the motor, whatever their ``std``, and must not be used.
+    note : str
+        Why ``describes_window`` is False (empty otherwise).
     """
 
     circuit: str
@@ -53,6 +59,8 @@ class CircuitEstimate:
     pso: PSOResult = field(repr=False)
     polished: bool = True
     input_noise_var: float = 0.0
+    describes_window: bool = True
+    note: str = ""
 
     @property
     def time_constant_s(self) -> float:
@@ -77,6 +85,9 @@ class CircuitEstimate:
         out["i0"] = self.initial_current_a
         out["n_samples"] = self.n_samples
         out["input_noise_var"] = self.input_noise_var
+        out["describes_window"] = self.describes_window
+        if self.note:
+            out["note"] = self.note
         out["iterations"] = self.pso.n_iterations
         out["evaluations"] = self.pso.n_evaluations
         out["search_range"] = {
