@@ -16,8 +16,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import signal
 import sys
+import threading
 from collections.abc import Sequence
+from typing import Any
 
 from observer import __version__
 
@@ -119,6 +122,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     setup_logging(args.verbose)
     module = importlib.import_module(args._module)
+    previous = _terminate_like_interrupt()
     try:
         return int(module.main(args) or 0)
     except _user_error_types() as exc:
@@ -126,6 +130,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     except KeyboardInterrupt:
         return 130
+    except _Terminated:
+        return 143
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class _Terminated(BaseException):
+    """SIGTERM, raised like KeyboardInterrupt so that output files are cleaned up."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
+def _terminate_like_interrupt() -> Any:
+    """Make SIGTERM unwind the stack (``finally`` blocks, atomic outputs discard their
+    temporary files) instead of killing the process where it stands. Commands that
+    handle SIGTERM themselves (``run``, ``fake-drive``) install their own handler."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        return None
+    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 
 if __name__ == "__main__":  # pragma: no cover

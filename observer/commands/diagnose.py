@@ -30,6 +30,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
+    from observer.commands.outputs import check_outputs, write_text
     from observer.diagnosis.diagnose import diagnose
     from observer.diagnosis.effects import LIBRARY
     from observer.recording import read_recording
@@ -42,6 +43,7 @@ def main(args: argparse.Namespace) -> int:
         bad = [e for e in effects if e not in LIBRARY]
         if bad:
             raise UserError(f"unknown effect(s) {', '.join(bad)}; expected {', '.join(LIBRARY)}")
+    check_outputs(("--json", args.json), ("--report", args.report))
     rec = read_recording(args.recording)
     diag = diagnose(
         rec, effects=effects, n_particles=args.particles, iterations=args.iterations,
@@ -50,11 +52,11 @@ def main(args: argparse.Namespace) -> int:
     )  # fmt: skip
     result = diag.to_dict()
     if args.json:
-        _write(args.json, json.dumps(_finite(result), indent=1, allow_nan=False) + "\n")
+        write_text(args.json, json.dumps(_finite(result), indent=1, allow_nan=False) + "\n")
     if args.report:
         from observer.diagnosis.report import render_html
 
-        _write(
+        write_text(
             args.report, render_html(diag, rec, title=f"dcobserver diagnosis of {args.recording}")
         )
     print(f"verdict: {diag.verdict}")
@@ -82,13 +84,3 @@ def _finite(value: Any) -> Any:
     if hasattr(value, "item"):
         return _finite(value.item())
     return value
-
-
-def _write(path: str, text: str) -> None:
-    from observer.cli import UserError
-
-    try:
-        with open(path, "w", encoding="utf-8") as f:
-            f.write(text)
-    except OSError as exc:
-        raise UserError(f"cannot write {path}: {exc.strerror or exc}") from exc

@@ -1,10 +1,15 @@
-"""``dcobserver recover``: rewrite a truncated MCAP log (crash, power loss) as a valid one."""
+"""``dcobserver recover``: rewrite a truncated MCAP log (crash, power loss) as a valid one.
+
+The result appears only when complete; an existing result is never replaced
+unless ``--force`` (a second ``recover`` must not silently undo the first);
+a file that is not MCAP, or holds no complete message, is an error.
+"""
 
 from __future__ import annotations
 
 import argparse
 import logging
-import os
+from pathlib import Path
 
 log = logging.getLogger("dcobserver.recover")
 
@@ -17,28 +22,39 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "unless --in-place",
     )  # fmt: skip
     parser.add_argument("--in-place", action="store_true", help="replace FILE by the result")
+    parser.add_argument(
+        "-f", "--force", action="store_true", help="replace OUT if it exists (default: refuse)"
+    )
+
+
+def output_path(src: str) -> str:
+    """The default result of recovering ``src``: ``X.mcap`` -> ``X.recovered.mcap``."""
+    stem = src[:-5] if src.lower().endswith(".mcap") else src
+    return stem + ".recovered.mcap"
 
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
+    from observer.recording import check_writable
     from observer.service.mcaplog import recover
 
     if args.in_place and args.output:
         raise UserError("give either --output or --in-place")
     src = args.file
-    if args.in_place:
-        out = src + ".recovering"
-    elif args.output:
-        out = args.output
-    else:
-        stem = src[:-5] if src.endswith(".mcap") else src
-        out = stem + ".recovered.mcap"
+    if not Path(src).is_file():
+        raise UserError(f"{src}: {'not a file' if Path(src).exists() else 'file not found'}")
+    out = src if args.in_place else (args.output or output_path(src))
+    overwrite = args.in_place or args.force
+    if not overwrite and Path(out).exists():
+        raise UserError(f"{out} exists; give --force to replace it, or --output elsewhere")
+    if Path(out).resolve() == Path(src).resolve() and not args.in_place:
+        raise UserError(f"{out} is FILE itself; give --in-place to replace it")
     try:
-        n = recover(src, out)
+        check_writable(out)
+        n = recover(src, out, overwrite=overwrite)
+    except FileExistsError:
+        raise UserError(f"{out} appeared meanwhile; give --force to replace it") from None
     except OSError as exc:
         raise UserError(f"cannot write {out}: {exc.strerror or exc}") from None
-    if args.in_place:
-        os.replace(out, src)
-        out = src
     print(f"{out}: {n} messages recovered")
     return 0

@@ -36,12 +36,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
+    from observer.commands.outputs import check_outputs
     from observer.estimation.motor import MOTORS
     from observer.recording import write_recording
     from observer.simulation.simulate import simulate
 
     if not args.duration > 0 or not args.rate > 0 or args.noise < 0:
         raise UserError("--duration and --rate must be > 0 and --noise >= 0")
+    if not args.output.lower().endswith((".csv", ".csv.gz", ".mcap")):
+        raise UserError(f"{args.output}: expected a name ending in .csv, .csv.gz or .mcap")
+    check_outputs(("OUT", args.output))
     motor = MOTORS[args.motor]
     effects = None
     if args.effect is not None:
@@ -63,7 +67,7 @@ def main(args: argparse.Namespace) -> int:
     elif args.circuit == "armature":
         rec = rec.select("va", "ia", "if", "omega")
     try:
-        write_recording(rec, args.output)
+        write_recording(rec, args.output)  # atomic: Ctrl-C leaves no partial file
     except OSError as exc:
         raise UserError(f"cannot write {args.output}: {exc.strerror or exc}") from exc
     log.info(

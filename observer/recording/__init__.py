@@ -4,7 +4,9 @@ Start with :class:`Recording` (:mod:`observer.recording.base`), then
 :func:`read_recording` / :func:`write_recording` below, which pick the format
 by the file name: CSV (:mod:`~observer.recording.csv_format`) or MCAP
 (:mod:`~observer.recording.mcap_reader`, :mod:`~observer.recording.mcap_writer`,
-carrying the messages of :mod:`~observer.recording.sample_block`).
+carrying the messages of :mod:`~observer.recording.sample_block`). Every file
+written (here and by the commands) appears whole or not at all:
+:mod:`~observer.recording.atomic`.
 
 Import rule: this package imports only ``observer.recording`` and
 ``observer.config`` (checked by ``tests/test_architecture.py``).
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import os
 
+from observer.recording.atomic import AtomicFile, atomic_open, check_writable, is_temporary
 from observer.recording.base import (
     CHANNELS,
     UNITS,
@@ -35,6 +38,7 @@ from observer.recording.sample_block import (
 )
 
 __all__ = [
+    "AtomicFile",
     "CHANNELS",
     "METADATA_NAME",
     "SAMPLES_SCHEMA_NAME",
@@ -44,6 +48,9 @@ __all__ = [
     "McapRecordStream",
     "Recording",
     "RecordingError",
+    "atomic_open",
+    "check_writable",
+    "is_temporary",
     "parse_sample_block",
     "read_csv",
     "read_mcap",
@@ -93,7 +100,8 @@ def write_recording(rec: Recording, path: PathArg, *, block_s: float = 0.1) -> N
     rec : Recording
         The recording.
     path : str or os.PathLike
-        A ``.csv``, ``.csv.gz`` or ``.mcap`` file; overwritten if it exists.
+        A ``.csv``, ``.csv.gz`` or ``.mcap`` file; replaced only once the new
+        file is complete (:mod:`~observer.recording.atomic`).
     block_s : float
         MCAP only: duration of the samples in one message (s).
 

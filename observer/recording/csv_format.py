@@ -25,6 +25,7 @@ from typing import IO, Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from observer.recording.atomic import AtomicFile
 from observer.recording.base import (
     _COLUMNS,
     _DEFAULT_REL_TOL,
@@ -318,12 +319,22 @@ def read_csv(path: PathArg) -> Recording:
     )
 
 
-def _open_csv_for_writing(name: str) -> IO[str]:
+@contextmanager
+def _csv_text_writer(name: str, out: IO[bytes]) -> Iterator[IO[str]]:
+    """A UTF-8 text stream into ``out`` (gzip-compressed for ``.gz``), leaving ``out`` open."""
+    gz = None
     if _is_gzip_name(name):
-        # mtime=0: the same recording always compresses to the same bytes.
-        binary = gzip.GzipFile(name, "wb", compresslevel=_GZIP_LEVEL, mtime=0)
-        return io.TextIOWrapper(binary, encoding="utf-8", newline="\n")
-    return open(name, "w", encoding="utf-8", newline="\n")
+        # mtime=0 and the final name in the header (not the temporary one): the same
+        # recording always compresses to the same bytes.
+        gz = gzip.GzipFile(name, "wb", compresslevel=_GZIP_LEVEL, fileobj=out, mtime=0)
+    text = io.TextIOWrapper(gz if gz is not None else out, encoding="utf-8", newline="\n")
+    try:
+        yield text
+        text.flush()
+    finally:
+        text.detach()
+        if gz is not None:
+            gz.close()  # writes the gzip trailer; closes only what it opened, not ``out``
 
 
 def write_csv(rec: Recording, path: PathArg) -> None:
@@ -338,7 +349,8 @@ def write_csv(rec: Recording, path: PathArg) -> None:
     rec : Recording
         The recording.
     path : str or os.PathLike
-        Destination; overwritten if it exists.
+        Destination; replaced only once the new file is complete
+        (:mod:`observer.recording.atomic`).
 
     Raises
     ------
@@ -349,7 +361,7 @@ def write_csv(rec: Recording, path: PathArg) -> None:
     columns = (_TIME, *rec.channels)
     arrays = [rec[column] for column in columns]
     try:
-        with _open_csv_for_writing(name) as stream:
+        with AtomicFile(name) as out, _csv_text_writer(name, out.stream) as stream:
             if rec.metadata:
                 stream.write(f"{_METADATA_PREFIX} {json.dumps(dict(rec.metadata))}\n")
             stream.write(",".join(columns) + "\n")

@@ -10,6 +10,7 @@ from typing import Final
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
+from observer.recording.atomic import AtomicFile
 from observer.recording.base import _TIME, PathArg, Recording, RecordingError
 from observer.recording.sample_block import (
     METADATA_NAME,
@@ -37,7 +38,8 @@ def write_mcap(rec: Recording, path: PathArg, *, block_s: float = 0.1) -> None:
     rec : Recording
         The recording; its times must be >= 0 (MCAP log times are unsigned).
     path : str or os.PathLike
-        Destination; overwritten if it exists.
+        Destination; replaced only once the new file is complete
+        (:mod:`observer.recording.atomic`).
     block_s : float
         Duration of the samples in one message (s); at least one sample per message.
 
@@ -65,8 +67,10 @@ def write_mcap(rec: Recording, path: PathArg, *, block_s: float = 0.1) -> None:
         )
     per_block = max(1, round(block_s / rec.dt))
     try:
-        with open(name, "wb") as stream:
-            writer = Writer(stream, chunk_size=_MCAP_CHUNK_SIZE, compression=CompressionType.ZSTD)
+        with AtomicFile(name) as out:
+            writer = Writer(
+                out.stream, chunk_size=_MCAP_CHUNK_SIZE, compression=CompressionType.ZSTD
+            )
             writer.start()
             schema_id = writer.register_schema(
                 name=SAMPLES_SCHEMA_NAME,

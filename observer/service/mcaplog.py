@@ -382,24 +382,43 @@ class McapLog:
                 self._error(exc, "unexpected error")
 
 
-def recover(source: str | os.PathLike[str], destination: str | os.PathLike[str]) -> int:
+def recover(
+    source: str | os.PathLike[str],
+    destination: str | os.PathLike[str],
+    *,
+    overwrite: bool = True,
+) -> int:
     """Rewrite a truncated or unfinished MCAP file as a valid, indexed one.
 
     Every schema, channel, message and metadata record before the cut is kept.
+    ``destination`` appears only when complete (:mod:`observer.recording.atomic`).
+
+    Parameters
+    ----------
+    source : str or os.PathLike
+        The cut file; never modified.
+    destination : str or os.PathLike
+        Where to write.
+    overwrite : bool
+        Whether an existing ``destination`` may be replaced (``FileExistsError``
+        otherwise).
 
     Returns
     -------
     int
-        The number of messages written.
+        The number of messages written (at least 1).
 
     Raises
     ------
     observer.recording.RecordingError
-        If ``source`` is not an MCAP file.
+        If ``source`` is not an MCAP file, or holds no complete message before
+        its cut (nothing to recover; ``destination`` is then not written).
+    OSError
+        If ``destination`` cannot be written.
     """
     from mcap.records import Channel, Message, Metadata, Schema
 
-    from observer.recording import McapRecordStream, RecordingError
+    from observer.recording import AtomicFile, McapRecordStream, RecordingError
 
     src = os.fspath(source)
     try:
@@ -411,9 +430,8 @@ def recover(source: str | os.PathLike[str], destination: str | os.PathLike[str])
         if stream.read(8) != b"\x89MCAP0\r\n":
             raise RecordingError("not an MCAP file (no MCAP magic bytes at the start)", path=src)
         stream.seek(0)
-        out = open(destination, "wb")  # noqa: SIM115
-        with out:
-            writer = Writer(out, compression=CompressionType.ZSTD)
+        with AtomicFile(destination, overwrite=overwrite) as out:
+            writer = Writer(out.stream, compression=CompressionType.ZSTD)
             writer.start(library="dcobserver recover")
             schemas: dict[int, int] = {}
             channels: dict[int, int] = {}
@@ -442,6 +460,10 @@ def recover(source: str | os.PathLike[str], destination: str | os.PathLike[str])
                     n += 1
                 elif isinstance(record, Metadata):
                     writer.add_metadata(record.name, dict(record.metadata))
+            if n == 0:
+                raise RecordingError(
+                    f"no complete message in its {size} bytes: nothing to recover", path=src
+                )
             if records.cut_reason is not None:
                 log.warning("%s: stops at the cut (%s)", src, records.cut_reason)
             writer.finish()
