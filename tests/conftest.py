@@ -6,6 +6,7 @@ import pytest
 
 from observer.estimation.motor import P12, TRACTION_60V
 from observer.simulation.simulate import simulate
+from tests.peers import Child
 
 
 @pytest.fixture(scope="session")
@@ -18,3 +19,19 @@ def p12_recording():
 def traction_recording():
     """12 s of a 60 V / 16 mOhm traction motor, 2 kHz, 0.2 % sensor noise."""
     return simulate(TRACTION_60V, duration_s=12.0, sample_rate_hz=2000.0, noise=0.002, seed=4)
+
+
+@pytest.fixture
+def children():
+    """Start real peers: ``children(args, ...)`` is a :class:`tests.peers.Child`; all are
+    killed at the end of the test."""
+    started: list[Child] = []
+
+    def start(args, **kwargs):
+        child = Child(args, **kwargs)
+        started.append(child)
+        return child
+
+    yield start
+    for child in started:
+        child.kill()

@@ -1,18 +1,14 @@
 """`dcobserver run` as a real process: Zenoh to a subscriber process, MCAP log, systemd notify,
-kill -9 and recover, unreachable Zenoh and a full log disk, bad config; plus the unit file."""
+kill -9 and recover, unreachable Zenoh and a full log disk, bad config (the unit files:
+tests/systemd/)."""
 
 from __future__ import annotations
 
 import json
-import os
-import queue
 import re
 import shutil
 import signal
 import socket
-import subprocess
-import sys
-import threading
 import time
 from pathlib import Path
 
@@ -24,82 +20,11 @@ from observer.estimation.motor import P12
 from observer.recording import Recording, read_recording, write_recording
 from observer.simulation.simulate import simulate
 from replay.source import iter_mcap_blocks
+from tests.peers import child_env, free_port
 
 REPO = Path(__file__).resolve().parents[3]
 RA_RISE = 1.10
 SEGMENT_S = 8.0
-
-
-def _env(**extra):
-    env = {**os.environ, "PYTHONPATH": str(REPO), **extra}
-    env.pop("NOTIFY_SOCKET", None)
-    env.pop("WATCHDOG_USEC", None)
-    env.update(extra)
-    return env
-
-
-def _free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Child:
-    """A subprocess whose stdout and stderr lines are collected by reader threads."""
-
-    def __init__(self, args, env=None, prefix=()):
-        self.proc = subprocess.Popen(
-            [*prefix, sys.executable, "-m", "observer.cli", *args],
-            cwd=REPO, env=env or _env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-            text=True,
-        )  # fmt: skip
-        self.lines: queue.Queue[tuple[str, str]] = queue.Queue()
-        self.stdout: list[str] = []
-        self.stderr: list[str] = []
-        for name, stream, store in (
-            ("out", self.proc.stdout, self.stdout),
-            ("err", self.proc.stderr, self.stderr),
-        ):
-            threading.Thread(target=self._pump, args=(name, stream, store), daemon=True).start()
-
-    def _pump(self, name, stream, store):
-        for line in stream:
-            store.append(line)
-            self.lines.put((name, line))
-
-    def wait_line(self, pattern, timeout=60.0, stream="err"):
-        deadline = time.monotonic() + timeout
-        regex = re.compile(pattern)
-        while time.monotonic() < deadline:
-            try:
-                name, line = self.lines.get(timeout=0.2)
-            except queue.Empty:
-                if self.proc.poll() is not None and self.lines.empty():
-                    break
-                continue
-            if name == stream and regex.search(line):
-                return line
-        tail = "".join(self.stderr[-20:])
-        raise AssertionError(f"no line matching {pattern!r} within {timeout} s; stderr:\n{tail}")
-
-    def kill(self):
-        if self.proc.poll() is None:
-            self.proc.kill()
-        self.proc.wait(10)
-
-
-@pytest.fixture
-def children():
-    started: list[Child] = []
-
-    def start(args, **kwargs):
-        child = Child(args, **kwargs)
-        started.append(child)
-        return child
-
-    yield start
-    for child in started:
-        child.kill()
 
 
 @pytest.fixture(scope="module")
@@ -171,7 +96,7 @@ def _strip(e):
 def test_done_when_subscriber_tracks_ra_rise_and_log_is_readable(
     tmp_path, children, ra_rise_recording
 ):
-    port = _free_port()
+    port = free_port()
     sub = children(
         ["subscribe", "dcobserver/*/estimate", "--json", "--listen",
          f"tcp/127.0.0.1:{port}", "--timeout", "120"],
@@ -279,7 +204,7 @@ def test_systemd_notify_watchdog_reload_and_sigterm_finishes_the_log(
     cfg = _config(tmp_path, ra_rise_recording, speed=1.0, loop=True, log_dir=log_dir)
     daemon = children(
         ["run", "--config", str(cfg), "--quiet-estimates"],
-        env=_env(NOTIFY_SOCKET=path, WATCHDOG_USEC="400000"),
+        env=child_env(NOTIFY_SOCKET=path, WATCHDOG_USEC="400000"),
     )
     try:
         seen = _wait_notify(sock, "READY=1")
@@ -306,7 +231,7 @@ def test_kill_9_leaves_a_log_readable_to_the_last_second_and_recover_fixes_it(
     tmp_path, children, ra_rise_recording
 ):
     log_dir = tmp_path / "logs"
-    port = _free_port()
+    port = free_port()
     zenoh = f'listen = ["tcp/127.0.0.1:{port}"]'
     cfg = _config(tmp_path, ra_rise_recording, speed=2.0, loop=True, log_dir=log_dir, zenoh=zenoh)
     daemon = children(["run", "--config", str(cfg), "--quiet-estimates"])
@@ -348,7 +273,7 @@ def test_unreachable_zenoh_and_full_log_disk_keep_it_estimating(
     """Zenoh client mode towards a port nobody listens on, and a log file size limit
     (RLIMIT_FSIZE: writes fail with EFBIG as on a full disk): estimates go on, both are
     reported in health."""
-    port = _free_port()
+    port = free_port()
     zenoh = f'mode = "client"\nlisten = []\nconnect = ["tcp/127.0.0.1:{port}"]\nretry_s = 0.5'
     log_dir = tmp_path / "logs"
     cfg = _config(tmp_path, ra_rise_recording, speed=2.0, zenoh=zenoh, log_dir=log_dir)
@@ -371,25 +296,6 @@ def test_bad_config_is_one_line_naming_key_and_file(tmp_path, children, ra_rise_
     err = "".join(daemon.stderr).strip()
     assert len(err.splitlines()) == 1
     assert str(cfg) in err and "observer.hop_sec" in err
-
-
-@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="needs systemd-analyze")
-def test_systemd_unit_verifies_cleanly(tmp_path):
-    unit = REPO / "systemd" / "dcobserver.service"
-    # verify wants ExecStart's binary to exist: point it at this interpreter's console script.
-    text = unit.read_text()
-    exe = Path(sys.executable).with_name("dcobserver")
-    assert exe.exists()
-    text = re.sub(r"ExecStart=\S+", f"ExecStart={exe}", text)
-    copy = tmp_path / "dcobserver.service"
-    copy.write_text(text)
-    result = subprocess.run(
-        ["systemd-analyze", "verify", str(copy)], capture_output=True, text=True, timeout=60
-    )
-    output = (result.stdout + result.stderr).strip()
-    assert result.returncode == 0 and output == "", output
-    for key in ("Type=notify", "WatchdogSec=", "Restart=on-failure", "NUMBA_CACHE_DIR="):
-        assert key in text
 
 
 def test_run_without_arguments_runs_the_demo_and_converges(children):
