@@ -32,7 +32,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "estimate field and armature parameters of a recording",
     ),
     "run": ("observer.commands.run", "run the real-time observer daemon (default: the demo)"),
-    "subscribe": ("observer.commands.subscribe", "print live estimates of any drive (Zenoh)"),
+    "subscribe": (
+        "observer.commands.subscribe",
+        "live table of the estimates of every drive and motor (Zenoh)",
+    ),
+    "router": (
+        "observer.commands.router",
+        "a Zenoh router for a fleet of daemons, with TLS, passwords and access control",
+    ),
     "replay": (
         "observer.commands.replay",
         "run the observer over a recording, as fast as possible",

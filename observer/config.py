@@ -87,6 +87,10 @@ def _key_name(x: Any) -> str | None:
     return None
 
 
+def _optional_key_name(x: Any) -> str | None:
+    return _key_name(x) if x else None
+
+
 @dataclass(frozen=True)
 class SourceConfig:
     """Where samples come from: ``kind`` names a registered source, ``options`` its settings."""
@@ -135,6 +139,12 @@ class ObserverConfig:
     drive_id: str = dataclasses.field(
         default="drive1", metadata={"check": _key_name, "help": "name in the Zenoh key"}
     )
+    # One daemon observes one motor; a drive with several motors runs one daemon per motor,
+    # each with its motor_id: keys dcobserver/<drive_id>/<motor_id>/...
+    # ("": dcobserver/<drive_id>/...).
+    motor_id: str = dataclasses.field(
+        default="", metadata={"check": _optional_key_name, "help": "motor name in the Zenoh key"}
+    )
     window_s: float = dataclasses.field(default=1.0, metadata={"check": _positive})
     hop_s: float = dataclasses.field(default=0.1, metadata={"check": _positive})
     circuits: str = dataclasses.field(
@@ -172,15 +182,177 @@ class ObserverConfig:
             raise ValueError("min_range_factor must be < max_range_factor")
 
 
+def _pem_file(x: Any) -> str | None:
+    if not x:
+        return None
+    try:
+        with open(x, "rb") as fh:
+            head = fh.read(1 << 16)
+    except OSError as exc:
+        return f"cannot read {x}: {exc.strerror or exc}"
+    return None if b"-----BEGIN " in head else f"{x} is not a PEM file (no '-----BEGIN' line)"
+
+
+def _readable_file(x: Any) -> str | None:
+    if not x:
+        return None
+    try:
+        with open(x, "rb"):
+            return None
+    except OSError as exc:
+        return f"cannot read {x}: {exc.strerror or exc}"
+
+
+def _key_names(x: Any) -> str | None:
+    for name in x:
+        problem = _key_name(name)
+        if problem:
+            return problem
+    return None
+
+
 @dataclass(frozen=True)
-class ZenohConfig:
-    """Zenoh session; by default a peer listening on loopback only, no multicast scouting."""
+class TlsConfig:
+    """TLS on the Zenoh links (``tls/HOST:PORT`` endpoints); on when ``root_ca`` is set.
+
+    One certificate serves both directions: presented when listening and, with
+    ``mutual``, when connecting. Its common name is this party's identity in
+    ``[zenoh.access]`` (``identify_by = "common_name"``). A listener's
+    certificate must name the host others connect to (subjectAltName
+    ``DNS:`` or ``IP:``) when they verify names.
+    """
+
+    root_ca: str = dataclasses.field(
+        default="", metadata={"path": True, "check": _pem_file, "help": "CA certificate (PEM)"}
+    )
+    certificate: str = dataclasses.field(
+        default="", metadata={"path": True, "check": _pem_file, "help": "own certificate (PEM)"}
+    )
+    private_key: str = dataclasses.field(
+        default="", metadata={"path": True, "check": _pem_file, "help": "its private key (PEM)"}
+    )
+    # Ask the other side of every link for a certificate signed by root_ca (mutual TLS).
+    mutual: bool = True
+    # When connecting, check that the listener's certificate names the host in the endpoint.
+    verify_name: bool = True
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.root_ca)
+
+    def __post_init__(self) -> None:
+        if bool(self.certificate) != bool(self.private_key):
+            raise ValueError("certificate and private_key go together: set both or neither")
+        if self.certificate and not self.root_ca:
+            raise ValueError("a certificate needs root_ca, the CA that signed the certificates")
+        if self.root_ca and self.mutual and not self.certificate:
+            raise ValueError(
+                "mutual = true needs this party's own certificate and private_key "
+                "(mutual = false: connect to a listener that asks for none)"
+            )
+
+
+@dataclass(frozen=True)
+class AuthConfig:
+    """User/password authentication of Zenoh links (on top of TLS or without it).
+
+    ``user`` and ``password_file`` are what this party presents when it opens
+    a link; ``dictionary_file`` (``user:password`` lines) is what a listener (a
+    router, a daemon that subscribers connect to) accepts from others: a link
+    with a wrong or missing password is refused.
+    """
+
+    user: str = ""
+    password_file: str = dataclasses.field(
+        default="", metadata={"path": True, "check": _readable_file, "help": "password, one line"}
+    )
+    dictionary_file: str = dataclasses.field(
+        default="", metadata={"path": True, "check": _readable_file, "help": "user:password lines"}
+    )
+
+    def __post_init__(self) -> None:
+        if bool(self.user) != bool(self.password_file):
+            raise ValueError("user and password_file go together: set both or neither")
+
+
+@dataclass(frozen=True)
+class AccessConfig:
+    """Who may publish a drive's keys and who may subscribe, enforced by this session.
+
+    Identities are certificate common names (``identify_by = "common_name"``,
+    needs mutual TLS) or user names (``"username"``, needs
+    ``auth.dictionary_file``). Everything not granted here is denied, and Zenoh
+    drops denied messages silently.
+    """
+
+    enabled: bool = False
+    identify_by: str = dataclasses.field(
+        default="common_name", metadata={"choices": ("common_name", "username")}
+    )
+    # drive_id -> identities allowed to publish dcobserver/<drive_id>/** (estimates, health,
+    # the latest queryable); nobody else may.
+    publishers: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+    # Identities allowed to subscribe to and query dcobserver/** (never to publish).
+    subscribers: list[str] = dataclasses.field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        for drive, identities in self.publishers.items():
+            problem = _key_name(drive) or _key_names(identities)
+            if problem:
+                raise ValueError(f"publishers.{drive}: {problem}")
+        problem = _key_names(self.subscribers)
+        if problem:
+            raise ValueError(f"subscribers: {problem}")
+
+
+@dataclass(frozen=True)
+class ZenohLinkConfig:
+    """Endpoints and security of a Zenoh session: the ``[zenoh]`` table of every command.
+
+    ``dcobserver router --config`` and ``dcobserver subscribe --config`` read
+    files with only this table; the daemon's :class:`ZenohConfig` adds its own
+    keys.
+    """
+
+    listen: list[str] = dataclasses.field(default_factory=list)
+    connect: list[str] = dataclasses.field(default_factory=list)
+    multicast_scouting: bool = False
+    tls: TlsConfig = TlsConfig()
+    auth: AuthConfig = AuthConfig()
+    access: AccessConfig = AccessConfig()
+
+    def __post_init__(self) -> None:
+        for name in ("listen", "connect"):
+            for endpoint in getattr(self, name):
+                problem = _endpoint(endpoint)
+                if problem:
+                    raise ValueError(f"{name}: {problem}")
+                if endpoint.startswith(("tls/", "quic/")) and not self.tls.enabled:
+                    raise ValueError(f"{name}: {endpoint!r} needs [zenoh.tls]")
+        if self.tls.enabled and not self.tls.certificate and self.listen:
+            raise ValueError("listening on TLS needs tls.certificate and tls.private_key")
+        access = self.access
+        mutual_tls = self.tls.certificate and self.tls.mutual
+        if access.enabled and access.identify_by == "common_name" and not mutual_tls:
+            raise ValueError('access.identify_by = "common_name" needs mutual TLS ([zenoh.tls])')
+        if access.enabled and access.identify_by == "username" and not self.auth.dictionary_file:
+            raise ValueError('access.identify_by = "username" needs auth.dictionary_file')
+
+
+def _endpoint(x: str) -> str | None:
+    protocol, _, address = x.partition("/")
+    if protocol not in ("tcp", "tls", "udp", "quic", "unixsock-stream") or not address:
+        return f"{x!r} is not an endpoint like 'tcp/HOST:PORT' or 'tls/HOST:PORT'"
+    return None
+
+
+@dataclass(frozen=True)
+class ZenohConfig(ZenohLinkConfig):
+    """The daemon's Zenoh session; by default a peer listening on loopback only."""
 
     enabled: bool = True
     mode: str = dataclasses.field(default="peer", metadata={"choices": ("peer", "client")})
     listen: list[str] = dataclasses.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
-    connect: list[str] = dataclasses.field(default_factory=list)
-    multicast_scouting: bool = False
     retry_s: float = dataclasses.field(default=5.0, metadata={"check": _positive})
     # At start, wait up to this long for a subscriber of the estimates to be matched
     # before the source is read, so the first estimates are not published to nobody.
@@ -209,6 +381,13 @@ class Config:
     observer: ObserverConfig = ObserverConfig()
     zenoh: ZenohConfig = ZenohConfig()
     log: LogConfig = LogConfig()
+
+
+@dataclass(frozen=True)
+class ZenohFileConfig:
+    """A file with only a ``[zenoh]`` table: ``dcobserver router`` and ``subscribe --config``."""
+
+    zenoh: ZenohLinkConfig = ZenohLinkConfig()
 
 
 def load_config(path: str | os.PathLike[str], cls: type[T] = Config) -> T:  # type: ignore[assignment]

@@ -7,6 +7,7 @@ import pytest
 from observer.estimation.motor import P12, TRACTION_60V
 from observer.simulation.simulate import simulate
 from tests.peers import Child
+from tests.pki import OPENSSL, Pki
 
 
 @pytest.fixture(scope="session")
@@ -35,3 +36,11 @@ def children():
     yield start
     for child in started:
         child.kill()
+
+
+@pytest.fixture(scope="session")
+def pki(tmp_path_factory):
+    """A test certificate authority (and a second, unrelated one): :class:`tests.pki.Pki`."""
+    if OPENSSL is None:
+        pytest.skip("needs the openssl command")
+    return Pki(tmp_path_factory.mktemp("pki"))

@@ -29,6 +29,7 @@ def main(args: argparse.Namespace) -> int:
     from observer.service.daemon import run_offline
     from observer.service.mcaplog import to_json
     from observer.service.window_observer import WindowResult
+    from observer.service.zenohconf import names
     from replay.source import ReplayOptions, ReplaySource
 
     config = load_config(args.config) if args.config else Config()
@@ -39,12 +40,12 @@ def main(args: argparse.Namespace) -> int:
         unit="sample", unit_scale=True, disable=args.no_progress, file=sys.stderr,
         desc=Path(args.recording).name,
     )  # fmt: skip
-    drive_id = config.observer.drive_id
+    ids = names(config.observer.drive_id, config.observer.motor_id)
 
     def on_result(result: WindowResult) -> None:
         if result.estimate is None:
             return
-        estimate = {"drive_id": drive_id, **result.estimate}
+        estimate = {**ids, **result.estimate}
         if args.json:
             sys.stdout.write(to_json(estimate).decode() + "\n")
         else:

@@ -1,4 +1,10 @@
-"""``dcobserver subscribe``: a live table of the estimates of any drive, over Zenoh."""
+"""``dcobserver subscribe``: live estimates of any drive and motor, over Zenoh.
+
+Two views: a **table** with one row per motor, redrawn in place (the default
+on a terminal; ``dcobserver subscribe 'dcobserver/**'`` through a router shows
+a whole fleet), and **lines**, one per message received (the default when
+piped, and ``--json`` prints each message as it came).
+"""
 
 from __future__ import annotations
 
@@ -6,53 +12,194 @@ import argparse
 import json
 import sys
 import time
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+DEFAULT_KEYEXPR = "dcobserver/**/estimate"
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+
+#: Parameter quality, worst last (the quality column shows the worst of a motor's values).
+QUALITY_ORDER = ("ok", "unconfirmed", "held", "none")
+QUALITY_MARK = {"ok": " ", "held": "h", "unconfirmed": "?", "none": "-"}
+#: (column title, circuit, parameter) of the values shown.
+VALUES = (
+    ("Rf ohm", "field", "R"),
+    ("Lf H", "field", "L"),
+    ("Ra ohm", "armature", "R"),
+    ("La H", "armature", "L"),
+    ("K H", "armature", "K"),
+)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "keyexpr", nargs="?", default="dcobserver/*/estimate", metavar="KEYEXPR",
-        help="Zenoh key expression to subscribe to",
+        "keyexpr", nargs="?", default=DEFAULT_KEYEXPR, metavar="KEYEXPR",
+        help="Zenoh key expression; 'dcobserver/**' adds health (and events) to the table",
+    )  # fmt: skip
+    parser.add_argument(
+        "--config", metavar="TOML", default=None,
+        help="a file with a [zenoh] table: endpoints, [zenoh.tls], [zenoh.auth] "
+        "(config/fleet/control-room.toml)",
     )  # fmt: skip
     parser.add_argument(
         "--connect", action="append", default=None, metavar="ENDPOINT",
-        help="endpoint of a daemon or router (repeatable)",
+        help=f"endpoint of a daemon or router, repeatable; without it the --config file's, "
+        f"else {DEFAULT_CONNECT} (unless --listen is given)",
     )  # fmt: skip
     parser.add_argument(
         "--listen", action="append", default=None, metavar="ENDPOINT",
         help="listen here for daemons that connect to us (repeatable)",
     )  # fmt: skip
-    parser.add_argument("--mode", choices=("peer", "client"), default="peer")
-    parser.add_argument("--json", action="store_true", help="print each sample's JSON as is")
+    parser.add_argument(
+        "--mode", choices=("peer", "client"), default="peer",
+        help="client: talk only to the router or daemon connected to; peer: also to other peers",
+    )  # fmt: skip
+    parser.add_argument(
+        "--view", choices=("auto", "table", "lines"), default="auto",
+        help="table: one row per motor, redrawn; lines: one line per message; "
+        "auto: table on a terminal, else lines",
+    )  # fmt: skip
+    parser.add_argument("--json", action="store_true", help="print each message's JSON as is")
+    parser.add_argument(
+        "--refresh", type=float, default=1.0, metavar="S", help="table redraw period (s)"
+    )
     parser.add_argument(
         "--latest", action="store_true",
-        help="query dcobserver/*/latest once (KEYEXPR defaults to it) and exit",
+        help="query dcobserver/**/latest once (KEYEXPR defaults to it) and exit",
     )  # fmt: skip
-    parser.add_argument("--count", type=int, default=0, help="exit after N samples (0: never)")
+    parser.add_argument("--count", type=int, default=0, help="exit after N messages (0: never)")
     parser.add_argument(
         "--timeout", type=float, default=0.0, help="exit after S seconds (0: never)"
     )
 
 
-def _row(key: str, e: dict[str, Any]) -> str:
-    def val(c: str, p: str) -> str:
-        d = e.get(c) or {}
-        v = d.get(p)
-        q = (d.get("quality") or {}).get(p, "")
-        mark = {"ok": " ", "held": "h", "unconfirmed": "?", "none": "-"}.get(q, " ")
-        return f"{'-' if v is None else format(v, '.5g'):>10}{mark}"
-
-    drive = key.split("/")[1] if key.count("/") >= 2 else key
-    t = e.get("t_ns", 0) / 1e9
-    cells = [val("field", "R"), val("field", "L"), val("armature", "R")]
-    cells += [val("armature", "L"), val("armature", "K")]
-    return f"{drive:<12} {t:>9.2f} " + " ".join(cells)
+# ---------------------------------------------------------------------------- formatting
 
 
-HEADER = (
-    f"{'drive':<12} {'t (s)':>9} {'Rf ohm':>11} {'Lf H':>11} {'Ra ohm':>11} {'La H':>11} "
-    f"{'K H':>11}    (h: held, ?: unconfirmed, -: none)"
+def _number(v: Any) -> str:
+    return "-" if not isinstance(v, int | float) or isinstance(v, bool) else format(v, ".5g")
+
+
+def _value(e: dict[str, Any], circuit: str, param: str) -> str:
+    c = e.get(circuit) or {}
+    value = c.get(param)
+    mark = (
+        QUALITY_MARK.get((c.get("quality") or {}).get(param, ""), " ") if value is not None else " "
+    )
+    return f"{_number(value):>10}{mark}"
+
+
+def _temperature(e: dict[str, Any], circuit: str) -> str:
+    """A winding's temperature (degC) when the estimate carries one (the tracker's), else '-'."""
+    c = e.get(circuit) or {}
+    t = c.get("temperature_c")
+    return "-" if not isinstance(t, int | float) else f"{t:.1f}"
+
+
+def quality(e: dict[str, Any]) -> str:
+    """The worst quality of the estimate's values (``ok`` when all are)."""
+    worst = 0
+    for _title, circuit, param in VALUES:
+        q = ((e.get(circuit) or {}).get("quality") or {}).get(param)
+        if q in QUALITY_ORDER:
+            worst = max(worst, QUALITY_ORDER.index(q))
+    return QUALITY_ORDER[worst] if any(e.get(c) for c in ("field", "armature")) else "-"
+
+
+def names_of(key_expr: str, message: dict[str, Any]) -> tuple[str, str, str]:
+    """``(drive, motor, leaf)``: the message's own names, else the key's."""
+    from observer.service.zenohconf import parse_key
+
+    drive, motor, leaf = parse_key(key_expr)
+    drive = str(message.get("drive_id") or drive or key_expr)
+    motor = str(message.get("motor_id") or motor or "-")
+    return drive, motor, leaf
+
+
+LINE_HEADER = (
+    f"{'drive':<12} {'motor':<8} {'t (s)':>9} "
+    + " ".join(f"{title:>11}" for title, _c, _p in VALUES)
+    + f" {'Tf C':>6} {'Ta C':>6}    (h: held, ?: unconfirmed, -: none)"
 )
+
+
+def format_line(key_expr: str, message: dict[str, Any]) -> str:
+    """One line for one message: an estimate's values, or a health or other leaf in brief."""
+    drive, motor, leaf = names_of(key_expr, message)
+    head = f"{drive:<12} {motor:<8}"
+    if leaf == "health":
+        return f"{head} health: {', '.join(message.get('flags') or []) or 'ok'}"
+    if leaf not in ("estimate", "latest"):
+        return f"{head} {leaf}: {json.dumps(message)[:100]}"
+    t = message.get("t_ns", 0) / 1e9
+    cells = " ".join(_value(message, c, p) for _title, c, p in VALUES)
+    temps = f"{_temperature(message, 'field'):>6} {_temperature(message, 'armature'):>6}"
+    return f"{head} {t:>9.2f} {cells} {temps}"
+
+
+@dataclass
+class _Motor:
+    estimate: dict[str, Any] = field(default_factory=dict)
+    received: float | None = None
+    health: str = "-"
+
+
+class FleetTable:
+    """The latest estimate and health of every motor heard from, one row each."""
+
+    HEADER = (
+        f"{'drive':<12} {'motor':<8} "
+        + " ".join(f"{title:>11}" for title, _c, _p in VALUES)
+        + f" {'Tf C':>6} {'Ta C':>6} {'quality':<11} {'age s':>6}  health"
+    )
+
+    def __init__(self) -> None:
+        self.motors: dict[tuple[str, str], _Motor] = {}
+
+    def update(self, key_expr: str, message: dict[str, Any], now: float) -> None:
+        drive, motor, leaf = names_of(key_expr, message)
+        row = self.motors.setdefault((drive, motor), _Motor())
+        if leaf == "health":
+            row.health = ", ".join(message.get("flags") or []) or "ok"
+        elif leaf in ("estimate", "latest"):
+            row.estimate = message
+            row.received = now
+
+    def render(self, now: float) -> list[str]:
+        lines = [self.HEADER]
+        for (drive, motor), row in sorted(self.motors.items()):
+            e = row.estimate
+            cells = " ".join(_value(e, c, p) for _title, c, p in VALUES)
+            temps = f"{_temperature(e, 'field'):>6} {_temperature(e, 'armature'):>6}"
+            age = "-" if row.received is None else f"{now - row.received:.1f}"
+            lines.append(
+                f"{drive:<12} {motor:<8} {cells} {temps} {quality(e):<11} {age:>6}  {row.health}"
+            )
+        lines.append("(h: held, ?: unconfirmed, -: none; age: since the last estimate arrived)")
+        return lines
+
+
+def _draw(out: TextIO, lines: list[str], in_place: bool) -> None:
+    # On a terminal: home the cursor and clear below, so the table stays in one place.
+    text = "\n".join(lines) + "\n"
+    out.write(("\x1b[H\x1b[J" + text) if in_place else (text + "\n"))
+    out.flush()
+
+
+# ---------------------------------------------------------------------------- session
+
+
+def session_link(args: argparse.Namespace) -> Any:
+    """The session's endpoints and security: the ``--config`` file's, endpoints overridden."""
+    from observer.cli import UserError
+    from observer.config import ZenohFileConfig, ZenohLinkConfig, load_config
+    from observer.service.zenohconf import with_endpoints
+
+    link = load_config(args.config, ZenohFileConfig).zenoh if args.config else ZenohLinkConfig()
+    try:
+        return with_endpoints(link, args.listen, args.connect, default_connect=[DEFAULT_CONNECT])
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
 
 
 def main(args: argparse.Namespace) -> int:
@@ -61,16 +208,11 @@ def main(args: argparse.Namespace) -> int:
     import zenoh
 
     from observer.cli import UserError
-    from observer.config import ZenohConfig
-    from observer.service.zenohpub import zenoh_config_json
+    from observer.service.zenohconf import session_json
 
-    listen = args.listen or []
-    connect = (
-        args.connect if args.connect is not None else ([] if listen else ["tcp/127.0.0.1:7447"])
-    )
-    cfg = ZenohConfig(mode=args.mode, listen=listen, connect=connect)
+    link = session_link(args)
     try:
-        session = zenoh.open(zenoh.Config.from_json5(zenoh_config_json(cfg)))
+        session = zenoh.open(zenoh.Config.from_json5(session_json(link, args.mode)))
     except Exception as exc:
         raise UserError(f"cannot open a Zenoh session: {exc}") from None
     if args.latest:
@@ -87,16 +229,28 @@ def main(args: argparse.Namespace) -> int:
             pass
 
     sub = session.declare_subscriber(args.keyexpr, on_sample)
-    via = ", ".join([*connect, *(f"listening on {e}" for e in listen)])
+    via = ", ".join([*link.connect, *(f"listening on {e}" for e in link.listen)])
     print(f"subscribed to {args.keyexpr} via {via}", file=sys.stderr, flush=True)
-    if not args.json:
-        print(HEADER, flush=True)
+    view = args.view
+    if view == "auto":
+        view = "table" if sys.stdout.isatty() and not args.json else "lines"
+    table = FleetTable() if view == "table" and not args.json else None
+    if table is None and not args.json:
+        print(LINE_HEADER, flush=True)
     received = 0
-    deadline = time.monotonic() + args.timeout if args.timeout > 0 else None
+    now = time.monotonic()
+    deadline = now + args.timeout if args.timeout > 0 else None
+    next_draw = now
+    changed = True  # piped: draw only when something arrived (a terminal: every period, for age)
     try:
         while args.count <= 0 or received < args.count:
-            if deadline is not None and time.monotonic() >= deadline:
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
                 break
+            if table is not None and now >= next_draw and (changed or sys.stdout.isatty()):
+                _draw(sys.stdout, table.render(now), in_place=sys.stdout.isatty())
+                next_draw = now + args.refresh
+                changed = False
             try:
                 key, payload = samples.get(timeout=0.2)
             except queue.Empty:
@@ -106,10 +260,21 @@ def main(args: argparse.Namespace) -> int:
                 print(payload.decode(errors="replace"), flush=True)
                 continue
             try:
-                print(_row(key, json.loads(payload)), flush=True)
-            except (ValueError, TypeError, AttributeError):
-                print(f"{key}: not an estimate: {payload[:80]!r}", flush=True)
+                message = json.loads(payload)
+                if not isinstance(message, dict):
+                    raise TypeError("not an object")
+            except (ValueError, TypeError):
+                if table is None:
+                    print(f"{key}: not a dcobserver message: {payload[:80]!r}", flush=True)
+                continue
+            if table is not None:
+                table.update(key, message, time.monotonic())
+                changed = True
+            else:
+                print(format_line(key, message), flush=True)
     finally:
+        if table is not None:
+            _draw(sys.stdout, table.render(time.monotonic()), in_place=sys.stdout.isatty())
         sub.undeclare()
         session.close()
     return 0
@@ -117,10 +282,10 @@ def main(args: argparse.Namespace) -> int:
 
 def _query_latest(session: Any, args: Any) -> int:
     """Ask every daemon's queryable for its latest estimate; retry until one answers."""
-    keyexpr = args.keyexpr if args.keyexpr != "dcobserver/*/estimate" else "dcobserver/*/latest"
+    keyexpr = args.keyexpr if args.keyexpr != DEFAULT_KEYEXPR else "dcobserver/**/latest"
     deadline = time.monotonic() + (args.timeout if args.timeout > 0 else 10.0)
     if not args.json:
-        print(HEADER, flush=True)
+        print(LINE_HEADER, flush=True)
     while time.monotonic() < deadline:
         answered = 0
         for reply in session.get(keyexpr, timeout=1.0):
@@ -128,8 +293,9 @@ def _query_latest(session: Any, args: Any) -> int:
                 continue
             answered += 1
             key, payload = str(reply.ok.key_expr), reply.ok.payload.to_bytes()
-            print(payload.decode() if args.json else _row(key, json.loads(payload)), flush=True)
+            print(payload.decode() if args.json else format_line(key, json.loads(payload)))
         if answered:
+            sys.stdout.flush()
             return 0
         time.sleep(0.2)
     print(f"no answer to {keyexpr}", file=sys.stderr)

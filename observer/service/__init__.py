@@ -5,7 +5,8 @@ order); a sample enters in :class:`observer.service.ringbuffer.RingBuffer`, is
 estimated window by window in
 :class:`observer.service.window_observer.SlidingWindowObserver`, and leaves
 through :mod:`observer.service.zenohpub` and :mod:`observer.service.mcaplog`;
-:mod:`observer.service.sdnotify` talks to systemd.
+:mod:`observer.service.zenohconf` builds every Zenoh session (keys, TLS,
+passwords, access control) and :mod:`observer.service.sdnotify` talks to systemd.
 
 Import rule: this package may import ``observer.service``,
 ``observer.estimation``, ``observer.recording``, ``observer.config`` and

@@ -62,14 +62,18 @@ class Daemon:
         on_estimate: Callable[[dict[str, Any]], None] | None = None,
         sample_rate_hint_hz: float = 20_000.0,
     ) -> None:
+        from observer.service.zenohconf import names
         from observer.service.zenohpub import ZenohPublisher
 
         self.config = config
         self.source = source
         self.drive_id = config.observer.drive_id
+        self.motor_id = config.observer.motor_id
+        #: Names every estimate and health message carries.
+        self.ids = names(self.drive_id, self.motor_id)
         self.ring = RingBuffer(max(1024, int(config.observer.buffer_s * sample_rate_hint_hz)))
         self.observer = SlidingWindowObserver(self.ring, config.observer)
-        self.zenoh = ZenohPublisher(config.zenoh, self.drive_id)
+        self.zenoh = ZenohPublisher(config.zenoh, self.drive_id, self.motor_id)
         self.mcap = McapLog(config.log, self.drive_id) if config.log.dir else None
         self.on_estimate = on_estimate
         self.latencies_ms: deque[float] = deque(maxlen=2000)
@@ -192,7 +196,7 @@ class Daemon:
     def _emit(self, result: WindowResult) -> None:
         if result.estimate is None:
             return
-        estimate = {"drive_id": self.drive_id, **result.estimate}
+        estimate = {**self.ids, **result.estimate}
         payload = to_json(estimate)
         self.zenoh.publish("estimate", payload)
         self.latencies_ms.append((time.monotonic_ns() - result.arrival_ns) / 1e6)
@@ -236,7 +240,7 @@ class Daemon:
             q = statistics.quantiles(latencies, n=100) if len(latencies) > 1 else latencies * 99
             lat = {"p50": q[49], "p99": q[98], "n": len(latencies)}
         return {
-            "drive_id": self.drive_id,
+            **self.ids,
             "wall_time_ns": time.time_ns(),
             "uptime_s": time.monotonic() - self._started,
             "state": state,

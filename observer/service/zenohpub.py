@@ -1,7 +1,10 @@
 """Zenoh output: estimates and health as JSON, and a queryable answering with the latest estimate.
 
 Keys: ``dcobserver/<drive_id>/estimate``, ``dcobserver/<drive_id>/health``,
-``dcobserver/<drive_id>/latest`` (queryable). ``put`` uses congestion control
+``dcobserver/<drive_id>/latest`` (queryable), with ``/<motor_id>`` after the
+drive when one is configured (:func:`observer.service.zenohconf.key`); TLS,
+user/password and access control as configured
+(:mod:`observer.service.zenohconf`). ``put`` uses congestion control
 DROP, so publishing never blocks the observer. The session is opened in a
 background thread and retried every ``retry_s`` while it fails (router or
 peer unreachable, port in use): meanwhile estimates are counted as not
@@ -10,42 +13,24 @@ published and everything else goes on.
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
 from typing import Any
 
 from observer.config import ZenohConfig
+from observer.service.zenohconf import key, session_json
 
 log = logging.getLogger(__name__)
-
-
-def zenoh_config_json(config: ZenohConfig) -> str:
-    """The JSON5 text of a ``zenoh.Config`` for these settings."""
-    return json.dumps(
-        {
-            "mode": config.mode,
-            "listen": {"endpoints": list(config.listen)},
-            "connect": {"endpoints": list(config.connect)},
-            "scouting": {
-                "multicast": {"enabled": config.multicast_scouting},
-                "gossip": {"enabled": config.multicast_scouting},
-            },
-        }
-    )
-
-
-def key(drive_id: str, leaf: str) -> str:
-    return f"dcobserver/{drive_id}/{leaf}"
 
 
 class ZenohPublisher:
     """Publishes estimates and health; opens its session in the background."""
 
-    def __init__(self, config: ZenohConfig, drive_id: str) -> None:
+    def __init__(self, config: ZenohConfig, drive_id: str, motor_id: str = "") -> None:
         self.config = config
         self.drive_id = drive_id
+        self.motor_id = motor_id
         self._session: Any = None
         self._publishers: dict[str, Any] = {}
         self._queryable: Any = None
@@ -62,6 +47,9 @@ class ZenohPublisher:
         }
         self._thread = threading.Thread(target=self._connect_loop, name="zenoh-open", daemon=True)
 
+    def _key(self, leaf: str) -> str:
+        return key(self.drive_id, leaf, self.motor_id)
+
     def start(self) -> None:
         if self.config.enabled:
             self._thread.start()
@@ -71,15 +59,14 @@ class ZenohPublisher:
 
         while not self._stop.is_set():
             try:
-                session = zenoh.open(zenoh.Config.from_json5(zenoh_config_json(self.config)))
+                text = session_json(self.config, self.config.mode)
+                session = zenoh.open(zenoh.Config.from_json5(text))
                 drop = zenoh.CongestionControl.DROP
                 publishers = {
-                    leaf: session.declare_publisher(
-                        key(self.drive_id, leaf), congestion_control=drop
-                    )
+                    leaf: session.declare_publisher(self._key(leaf), congestion_control=drop)
                     for leaf in ("estimate", "health")
                 }
-                queryable = session.declare_queryable(key(self.drive_id, "latest"), self._on_query)
+                queryable = session.declare_queryable(self._key("latest"), self._on_query)
             except Exception as exc:
                 with self._lock:
                     self._health["errors"] += 1
@@ -101,7 +88,7 @@ class ZenohPublisher:
                 self._health["state"] = "open"
             log.info(
                 "zenoh: publishing on %s (listen %s, connect %s)",
-                key(self.drive_id, "{estimate,health,latest}"),
+                self._key("{estimate,health,latest}"),
                 ",".join(self.config.listen) or "-", ",".join(self.config.connect) or "-",
             )  # fmt: skip
             return
@@ -136,13 +123,13 @@ class ZenohPublisher:
         self._health["queries"] += 1
         try:
             if latest is not None:
-                query.reply(key(self.drive_id, "latest"), latest)
+                query.reply(self._key("latest"), latest)
         except Exception as exc:
             self._health["errors"] += 1
             self._health["last_error"] = f"reply: {exc}"
 
     def publish(self, leaf: str, payload: bytes) -> bool:
-        """Put ``payload`` on ``dcobserver/<drive_id>/<leaf>``; False if not connected."""
+        """Put ``payload`` on this observer's ``leaf`` key; False if not connected."""
         if leaf == "estimate":
             self._latest = payload
         publisher = self._publishers.get(leaf)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from observer.config import Config, ConfigError, load_config
+from tests.peers import REPO
 
 
 def write(tmp_path, text):
@@ -38,6 +39,19 @@ def test_valid_config_and_defaults(tmp_path):
         ("[estimate.field]\nR = [300.0, 100.0]\n", ["estimate.field.R", "low < high"]),
         ("[estimate.field]\nR = [1.0]\n", ["estimate.field.R", "2 values"]),
         ("[estimate\n", ["c.toml", "TOML"]),
+        ('[observer]\nmotor_id = "a/b"\n', ["observer.motor_id", "'/'"]),
+        # Zenoh security: a bad path names the key and the file (resolved beside the config).
+        (
+            '[zenoh.tls]\nroot_ca = "certs/ca.pem"\n',
+            ["c.toml", "zenoh.tls.root_ca", "certs/ca.pem"],
+        ),
+        ('[zenoh.tls]\nroot_ca = "c.toml"\n', ["zenoh.tls.root_ca", "not a PEM file"]),
+        ('[zenoh.auth]\nuser = "u"\npassword_file = "pw"\n', ["zenoh.auth.password_file", "pw"]),
+        ('[zenoh.auth]\nuser = "u"\n', ["[zenoh.auth]", "password_file"]),
+        ('[zenoh]\nconnect = ["tls/10.0.0.1:7447"]\n', ["c.toml", "[zenoh]", "needs [zenoh.tls]"]),
+        ("[zenoh.access]\nenabled = true\n", ["c.toml", "needs mutual TLS"]),
+        ("[zenoh.access]\nallow = []\n", ["zenoh.access.allow", "subscribers"]),
+        ('[zenoh.access.publishers]\n"a/b" = ["x"]\n', ["zenoh.access", "publishers.a/b"]),
     ],
 )
 def test_bad_config_names_key_and_file(tmp_path, text, fragments):
@@ -50,3 +64,9 @@ def test_bad_config_names_key_and_file(tmp_path, text, fragments):
 def test_missing_file(tmp_path):
     with pytest.raises(ConfigError, match="not found"):
         load_config(tmp_path / "nope.toml")
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in (REPO / "config").glob("*.toml")))
+def test_shipped_configs_load(name):
+    """config/*.toml as shipped (config/fleet/ needs certificates: tests/observer/test_fleet.py)."""
+    assert isinstance(load_config(REPO / "config" / name), Config)

@@ -1,0 +1,126 @@
+"""A fleet as the README sets it up (config/fleet/): a router, three daemons of two drives
+and one subscriber, each in its own process, with mutual TLS and access control."""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+
+from observer.commands.subscribe import FleetTable, format_line, quality
+from observer.config import ZenohFileConfig, load_config
+from tests.peers import REPO, free_port
+from tests.pki import make_certs
+
+FLEET = REPO / "config" / "fleet"
+DEMO = REPO / "replay" / "data" / "demo.mcap"
+DAEMONS = ("shovel1-hoist", "shovel1-crowd", "shovel2-hoist")
+
+
+def fleet_copy(tmp_path):
+    """config/fleet/ in a temporary folder, on a free port, with its certificates made by
+    config/fleet/make-certs.sh as the README says."""
+    folder = tmp_path / "fleet"
+    folder.mkdir()
+    endpoint = f"127.0.0.1:{free_port()}"
+    for config in FLEET.glob("*.toml"):
+        text = config.read_text().replace("127.0.0.1:7447", endpoint)
+        (folder / config.name).write_text(text.replace("../../replay/data/demo.mcap", str(DEMO)))
+    make_certs(folder / "certs", "ca", "router", "shovel1", "shovel2", "control-room")
+    return folder
+
+
+def latest_table(lines):
+    """The rows of the last complete table the subscriber drew (stdout, not a terminal)."""
+    text = "".join(lines)
+    tables = [t for t in text.split("\n\n") if t.startswith("drive ") and t.rstrip().endswith(")")]
+    return tables[-1].splitlines()[1:-1] if tables else []
+
+
+def test_a_router_with_three_daemons_and_one_subscriber_shows_every_motor(tmp_path, children):
+    fleet = fleet_copy(tmp_path)
+    router = children(["router", "--config", str(fleet / "router.toml")])
+    router.wait_line("listening on", timeout=60)
+    subscriber = children(
+        ["subscribe", "dcobserver/**", "--config", str(fleet / "control-room.toml"),
+         "--mode", "client", "--view", "table", "--refresh", "0.5", "--timeout", "300"],
+    )  # fmt: skip
+    subscriber.wait_line("subscribed to dcobserver/\\*\\* via tls/", timeout=60)
+    daemons = [
+        children(["run", "--config", str(fleet / f"{name}.toml"), "--quiet-estimates"])
+        for name in DAEMONS
+    ]
+    for daemon in daemons:
+        daemon.wait_line(r"zenoh: publishing on dcobserver/shovel\d/", timeout=120)
+
+    expected = {tuple(name.split("-")) for name in DAEMONS}
+    number = r"\d[\d.e+-]*"
+    # Each row: drive, motor, Rf, Lf, Ra, La, K (a mark may follow a value), Tf, Ta,
+    # quality, age, health. Wait until every motor's row has a field and armature fit and
+    # its health ('dcobserver/**' carries both).
+    row = re.compile(
+        rf"^(\S+)\s+(\S+)\s+({number})\S?\s+\S+\s+({number})\S?\s+\S+\s+({number})\S?\s+"
+        rf"(\S+)\s+(\S+)\s+(\w+)\s+({number})\s+(.+)$"
+    )
+    deadline = time.monotonic() + 180
+    while True:
+        rows = {}
+        for line in latest_table(subscriber.stdout):
+            m = row.match(line)
+            if m and m.group(10).strip() != "-":  # its health (every 1 s) has arrived too
+                rows[(m.group(1), m.group(2))] = m
+        if set(rows) == expected:
+            break
+        assert time.monotonic() < deadline, "".join(subscriber.stdout[-12:])
+        for daemon in daemons:
+            assert daemon.proc.poll() is None, "".join(daemon.stderr[-10:])
+        try:
+            subscriber.lines.get(timeout=1.0)
+        except Exception:
+            pass
+    for (drive, motor), m in rows.items():
+        rf, ra, k = float(m.group(3)), float(m.group(4)), float(m.group(5))
+        # The demo is the P-12: Rf = 185 ohm, Ra = 3.5 ohm, K = 1.12 H.
+        assert 150 < rf < 220 and 2.5 < ra < 4.5 and 0.9 < k < 1.4, (drive, motor, m.group(0))
+        assert float(m.group(9)) < 10.0, m.group(0)  # age (s): live, not a stale row
+
+
+def test_the_shipped_fleet_configs_load_strictly(tmp_path):
+    fleet = fleet_copy(tmp_path)
+    router = load_config(fleet / "router.toml", ZenohFileConfig).zenoh
+    assert router.access.enabled and router.access.subscribers == ["control-room"]
+    assert set(router.access.publishers) == {"shovel1", "shovel2"}
+    assert load_config(fleet / "control-room.toml", ZenohFileConfig).zenoh.tls.enabled
+    for name in DAEMONS:
+        config = load_config(fleet / f"{name}.toml")
+        assert (config.observer.drive_id, config.observer.motor_id) == tuple(name.split("-"))
+        assert config.zenoh.mode == "client" and config.zenoh.tls.mutual
+        # Each daemon's identity is one the router lets publish its drive's keys.
+        cn = Path(config.zenoh.tls.certificate).stem
+        assert cn in router.access.publishers[config.observer.drive_id]
+
+
+def test_the_table_keeps_one_row_per_motor_with_its_latest_estimate_and_health():
+    table = FleetTable()
+    estimate = {
+        "drive_id": "shovel1", "motor_id": "hoist", "t_ns": 5_000_000_000,
+        "field": {"R": 185.04, "L": 50.1, "quality": {"R": "ok", "L": "held"},
+                  "temperature_c": 61.27},
+        "armature": {"R": 3.5012, "L": None, "K": 1.1213,
+                     "quality": {"R": "ok", "L": "none", "K": "ok"}},
+    }  # fmt: skip
+    table.update("dcobserver/shovel1/hoist/estimate", estimate, now=100.0)
+    table.update("dcobserver/shovel1/hoist/health", {"flags": ["source_stalled"]}, now=100.5)
+    # A drive with one motor (no motor_id) and no estimate yet: health only.
+    table.update("dcobserver/shovel2/health", {"drive_id": "shovel2", "flags": []}, now=101.0)
+    header, hoist, shovel2, legend = table.render(now=102.0)
+    assert header.split()[:2] == ["drive", "motor"] and "age" in header
+    cells = hoist.split()
+    assert cells[:2] == ["shovel1", "hoist"]
+    assert "185.04" in cells and "50.1h" in cells and "3.5012" in cells and "1.1213" in cells
+    assert "61.3" in cells  # the field winding's temperature, when the estimate has one
+    assert cells[-3:] == ["none", "2.0", "source_stalled"]  # worst quality, age (s), health
+    assert shovel2.split()[:2] == ["shovel2", "-"] and shovel2.split()[-2:] == ["-", "ok"]
+    assert "held" in legend
+    assert quality({"field": {"R": 1.0, "quality": {"R": "ok"}}}) == "ok"
+    assert format_line("dcobserver/shovel2/health", {"flags": []}).split()[-2:] == ["health:", "ok"]
