@@ -156,3 +156,19 @@ def machine_description() -> str:
 
 def relative_error(estimate: float, truth: float) -> float:
     return (estimate - truth) / truth
+
+
+def adc_full_scale(motor: MotorParameters, factor: float = 2.5) -> dict[str, float]:
+    """Full-scale magnitudes of a drive's ADC channels: ``factor`` x the motor's rated values.
+
+    A drive measures to a few times rated (overloads, transients); 2.5x keeps a
+    simulated duty cycle's current peaks (up to 2x rated) inside the range.
+    Used with :func:`observer.recording.quantise` to make 12-bit recordings.
+    """
+    return {
+        "va": factor * motor.rated_armature_voltage_v,
+        "ia": factor * motor.rated_armature_current_a,
+        "vf": factor * motor.rated_field_voltage_v,
+        "if": factor * motor.rated_field_current_a,
+        "omega": factor * motor.rated_speed_rad_s,
+    }

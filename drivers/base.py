@@ -21,9 +21,10 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +40,31 @@ class SourceClosed(SourceError):
     """The source was closed, or it ended (a replay reached the end of its file)."""
 
 
+class AdcScale(NamedTuple):
+    """How a channel's ADC counts become SI values: ``offset + lsb * count`` (float64).
+
+    The same convention as a recording's ``"adc"`` metadata
+    (:mod:`observer.recording.adc`, whose ``AdcScale`` has these fields in this order).
+
+    Attributes
+    ----------
+    lsb : float
+        SI units per count (> 0).
+    offset : float
+        SI value of count 0.
+    bits : int
+        Converter resolution (0: not known).
+    """
+
+    lsb: float
+    offset: float = 0.0
+    bits: int = 0
+
+    def values(self, counts: npt.ArrayLike) -> np.ndarray:
+        """SI values (float64) of integer ``counts``."""
+        return self.offset + self.lsb * np.asarray(counts, dtype=np.float64)
+
+
 @dataclass(frozen=True)
 class SampleBlock:
     """A block of consecutive samples.
@@ -50,10 +76,43 @@ class SampleBlock:
         it, else host ``time.monotonic_ns``; see each adapter).
     signals : mapping of channel name -> (n,) float64 array
         A subset of :data:`CHANNELS` in SI units. A source may lack some channels.
+    scales : mapping of channel name -> AdcScale
+        Channels measured as integer ADC counts, whose values are exactly
+        ``scale.values(counts)`` (build such blocks with :meth:`from_counts`).
+        Downstream the counts are recovered exactly (:meth:`counts`), so the log
+        stores them instead of float64 values. Empty if the source knows none.
     """
 
     t_ns: np.ndarray
     signals: Mapping[str, np.ndarray]
+    scales: Mapping[str, AdcScale] = field(default_factory=dict)
+
+    @classmethod
+    def from_counts(
+        cls,
+        t_ns: npt.ArrayLike,
+        counts: Mapping[str, npt.ArrayLike],
+        scales: Mapping[str, AdcScale],
+        signals: Mapping[str, npt.ArrayLike] | None = None,
+    ) -> SampleBlock:
+        """A block of ADC counts: each channel of ``counts`` becomes ``scales[c].values(...)``.
+
+        ``signals`` adds channels that have no counts (already in SI units).
+        """
+        values = {name: scales[name].values(c) for name, c in counts.items()}
+        values.update(
+            {name: np.asarray(v, dtype=np.float64) for name, v in (signals or {}).items()}
+        )
+        return cls(t_ns, values, {name: scales[name] for name in counts})  # type: ignore[arg-type]
+
+    def counts(self, channel: str) -> np.ndarray | None:
+        """The integer counts of ``channel``, or None if it has no scale (int64)."""
+        scale = self.scales.get(channel)
+        if scale is None:
+            return None
+        values = self.signals[channel]
+        counts = np.rint((values - scale.offset) / scale.lsb).astype(np.int64)
+        return counts
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t_ns, dtype=np.int64)
@@ -69,8 +128,16 @@ class SampleBlock:
                     f"channel {name!r} has {arr.shape[0]} samples, t_ns has {t.shape[0]}"
                 )
             sig[name] = arr
+        scales = {}
+        for name, scale in self.scales.items():
+            if name not in sig:
+                raise ValueError(f"scale for channel {name!r}, which the block does not have")
+            scales[name] = AdcScale(*scale)
+            if not (np.isfinite(scales[name].lsb) and scales[name].lsb > 0):
+                raise ValueError(f"scale of {name!r}: lsb must be > 0, got {scales[name].lsb}")
         object.__setattr__(self, "t_ns", t)
         object.__setattr__(self, "signals", MappingProxyType(sig))
+        object.__setattr__(self, "scales", MappingProxyType(scales))
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -180,7 +247,7 @@ class Source(abc.ABC):
         n_bad = int(len(block) - finite.sum())
         if n_bad:
             block = SampleBlock(
-                block.t_ns[finite], {k: v[finite] for k, v in block.signals.items()}
+                block.t_ns[finite], {k: v[finite] for k, v in block.signals.items()}, block.scales
             )
         self._count(blocks=1, samples=len(block), bad_samples=n_bad)
         return block if len(block) else None

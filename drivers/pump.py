@@ -31,11 +31,12 @@ import time
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
-from drivers.base import SampleBlock, Source, SourceClosed
+from drivers.base import AdcScale, SampleBlock, Source, SourceClosed
 
 log = logging.getLogger(__name__)
 
@@ -189,6 +190,10 @@ class PumpedSource(Source):
     #: Extra health counters, present (as 0) from the start.
     counters: tuple[str, ...] = ("received_samples", "overrun_samples")
 
+    #: ADC scales of the channels ``_receive`` computes as ``offset + lsb * count``
+    #: (exactly that float64 formula), handed on with every block.
+    scales: Mapping[str, AdcScale] = MappingProxyType({})
+
     def __init__(
         self,
         *,
@@ -256,7 +261,7 @@ class PumpedSource(Source):
         t = np.concatenate([c[0] for c in chunks])
         names = chunks[0][1].keys()
         signals = {name: np.concatenate([c[1][name] for c in chunks]) for name in names}
-        return SampleBlock(t, signals)
+        return SampleBlock(t, signals, {c: s for c, s in self.scales.items() if c in signals})
 
     def health(self) -> dict[str, Any]:
         """Health counters; ``connected`` is the device's state as the pump sees it."""

@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import CHANNELS
+from drivers.base import CHANNELS, AdcScale
 from drivers.pump import DeviceClock, DeviceLost, PumpedSource, PumpOptions
 
 log = logging.getLogger(__name__)
@@ -248,6 +248,11 @@ class SerialAdcSource(PumpedSource):
         self._scale = np.array([opts.scale[k] for k in self._index])
         offset = opts.offset or [0.0] * n
         self._offset = np.array([offset[k] for k in self._index])
+        # int16 counts: the log stores them, not float64 values (exact, a quarter the size).
+        self.scales = {
+            name: AdcScale(float(self._scale[j]), float(self._offset[j]), 16)
+            for j, name in enumerate(self._names)
+        }
         self._clock = DeviceClock(wrap=2**32, tick_ns=1000, max_step_ns=1_000_000_000)
         self._serial: Any = None
         self._next_seq: int | None = None
@@ -307,7 +312,7 @@ class SerialAdcSource(PumpedSource):
         times = np.fromiter((f.device_time_us for f in frames), dtype=np.int64, count=len(frames))
         t_ns = self._clock.convert(times, host_ns)
         raw = np.array([f.values for f in frames], dtype=np.float64)[:, self._index]
-        si = raw * self._scale + self._offset
+        si = self._offset + self._scale * raw  # AdcScale.values: the log recovers the counts
         self._add(frames=len(frames))
         return t_ns, {name: si[:, j].copy() for j, name in enumerate(self._names)}
 

@@ -360,16 +360,53 @@ class ZenohConfig(ZenohLinkConfig):
     wait_for_subscriber_s: float = dataclasses.field(default=0.0, metadata={"min": 0.0})
 
 
+def _not_negative(x: Any) -> str | None:
+    return None if x >= 0 else f"must be >= 0 (0: no limit), got {x!r}"
+
+
 @dataclass(frozen=True)
 class LogConfig:
-    """MCAP log of raw samples, estimates and health; ``dir = ""`` turns it off."""
+    """MCAP log of raw samples, estimates and health; ``dir = ""`` turns it off.
 
-    dir: str = dataclasses.field(default="", metadata={"path": True})
-    prefix: str = "dcobserver"
-    rotate_mb: float = dataclasses.field(default=256.0, metadata={"check": _positive})
-    rotate_s: float = dataclasses.field(default=3600.0, metadata={"check": _positive})
-    flush_s: float = dataclasses.field(default=1.0, metadata={"check": _positive})
-    block_s: float = dataclasses.field(default=0.1, metadata={"check": _positive})
+    Retention keeps the files of this drive (``<prefix>-<drive_id>-*.mcap`` in
+    ``dir``) within ``max_total_gb`` and ``max_age_days``, deleting the oldest
+    first and never the file being written; 0 turns a limit off.
+    """
+
+    dir: str = dataclasses.field(
+        default="", metadata={"path": True, "help": "folder of the log files; empty: no log"}
+    )
+    prefix: str = dataclasses.field(
+        default="dcobserver", metadata={"check": _key_name, "help": "start of the file names"}
+    )
+    rotate_mb: float = dataclasses.field(
+        default=256.0, metadata={"check": _positive, "help": "start a new file at this size (MB)"}
+    )
+    rotate_s: float = dataclasses.field(
+        default=3600.0, metadata={"check": _positive, "help": "or after this long (s)"}
+    )
+    flush_s: float = dataclasses.field(
+        default=0.5,
+        metadata={"check": _positive, "help": "write the data to disk this often (s)"},
+    )
+    block_s: float = dataclasses.field(
+        default=0.1, metadata={"check": _positive, "help": "samples per /samples message (s)"}
+    )
+    max_total_gb: float = dataclasses.field(
+        default=10.0,
+        metadata={"check": _not_negative, "help": "delete the oldest files beyond (GB); 0: never"},
+    )
+    max_age_days: float = dataclasses.field(
+        default=0.0,
+        metadata={"check": _not_negative, "help": "delete files older than this; 0: never"},
+    )
+
+    def __post_init__(self) -> None:
+        if self.max_total_gb and self.rotate_mb > self.max_total_gb * 1000 / 2:
+            raise ValueError(
+                f"rotate_mb ({self.rotate_mb:g}) must be at most half of max_total_gb "
+                f"({self.max_total_gb:g} GB), so that older files can make room"
+            )
 
 
 @dataclass(frozen=True)

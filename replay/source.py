@@ -16,16 +16,17 @@ the reader asks.
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from drivers.base import SampleBlock, Source, SourceClosed, SourceError
+from drivers.base import AdcScale, SampleBlock, Source, SourceClosed, SourceError
 
 log = logging.getLogger(__name__)
 
@@ -59,33 +60,51 @@ class ReplayOptions:
             raise ValueError("'path' (the recording to replay) is required")
 
 
-def iter_mcap_blocks(path: str | os.PathLike[str]) -> Iterator[tuple[np.ndarray, dict]]:
+def iter_mcap_blocks(path: str | os.PathLike[str]) -> Iterator[SampleBlock]:
     """Stream the sample blocks of an MCAP file in file order.
 
-    Yields ``(t_ns, signals)`` per message on
-    :data:`observer.recording.SAMPLES_TOPIC`; stops quietly (with a warning) where
-    the file is cut; a malformed message is logged and skipped.
+    Yields one :class:`SampleBlock` per message on
+    :data:`observer.recording.SAMPLES_TOPIC` (protobuf or the older JSON
+    blocks), with the ADC scales of channels stored as counts, or declared by
+    the file's ``"adc"`` metadata; stops quietly (with a warning) where the
+    file is cut; a malformed message is logged and skipped.
     """
-    from mcap.records import Channel, Message
+    from mcap.records import Channel, Message, Metadata
 
-    from observer.recording import SAMPLES_TOPIC, McapRecordStream, parse_sample_block
+    from observer.recording import (
+        METADATA_NAME,
+        SAMPLES_TOPIC,
+        McapRecordStream,
+        adc_scales,
+        parse_samples,
+    )
 
     name = os.fspath(path)
     size = os.path.getsize(name)
     channels: dict[int, Channel] = {}
+    declared: dict[str, AdcScale] = {}
     with open(name, "rb") as stream:
         records = McapRecordStream(stream, size)
         index = 0
         for record in records:
             if isinstance(record, Channel):
                 channels[record.id] = record
+            elif isinstance(record, Metadata) and record.name == METADATA_NAME:
+                try:
+                    metadata = json.loads(record.metadata.get("json", "{}"))
+                    declared = {c: AdcScale(*s) for c, s in adc_scales(metadata).items()}
+                except (ValueError, AttributeError) as exc:
+                    log.warning("%s: ignoring the ADC scales of its metadata: %s", name, exc)
             elif isinstance(record, Message):
                 channel = channels.get(record.channel_id)
                 if channel is None or channel.topic != SAMPLES_TOPIC:
                     continue
                 index += 1
                 try:
-                    yield parse_sample_block(record.data)
+                    t_ns, signals, scales = parse_samples(channel.message_encoding, record.data)
+                    block_scales = {c: s for c, s in declared.items() if c in signals}
+                    block_scales.update({c: AdcScale(*s) for c, s in scales.items()})
+                    yield SampleBlock(t_ns, signals, block_scales)
                 except ValueError as exc:
                     log.warning("%s: skipping sample message %d: %s", name, index, exc)
         if records.cut_reason is not None:
@@ -94,18 +113,20 @@ def iter_mcap_blocks(path: str | os.PathLike[str]) -> Iterator[tuple[np.ndarray,
             )
 
 
-def _iter_file_blocks(path: str) -> Iterator[tuple[np.ndarray, dict]]:
+def _iter_file_blocks(path: str) -> Iterator[SampleBlock]:
     if path.lower().endswith(".mcap"):
         yield from iter_mcap_blocks(path)
         return
-    from observer.recording import read_recording
+    from observer.recording import adc_scales, read_recording
 
     rec = read_recording(path)
+    scales = {c: AdcScale(*s) for c, s in adc_scales(rec.metadata).items()}
     t_ns = np.rint(rec.t * _NS).astype(np.int64)
     step = 4096
     for start in range(0, rec.n_samples, step):
         sl = slice(start, start + step)
-        yield t_ns[sl], {c: np.asarray(rec.signals[c][sl]) for c in rec.channels}
+        signals = {c: np.asarray(rec.signals[c][sl]) for c in rec.channels}
+        yield SampleBlock(t_ns[sl], signals, scales)
 
 
 class ReplaySource(Source):
@@ -124,7 +145,7 @@ class ReplaySource(Source):
         if not os.path.isfile(options.path):
             raise SourceError(f"replay: recording {options.path} not found")
         self.options = options
-        self._messages: Iterator[tuple[np.ndarray, dict]] | None = None
+        self._messages: Iterator[SampleBlock] | None = None
         self._pending_t: list[np.ndarray] = []
         self._pending_s: list[dict] = []
         self._offset_ns = 0  # added to times on each loop
@@ -136,6 +157,7 @@ class ReplaySource(Source):
         self._loops = 0
         self._period_ns = 0
         self._ready: SampleBlock | None = None
+        self._scales: Mapping[str, AdcScale] = {}
 
     @classmethod
     def of(cls, path: str | Path, **options: object) -> ReplaySource:
@@ -147,15 +169,15 @@ class ReplaySource(Source):
         self._start_wall_ns = time.monotonic_ns()
         self._count(path=self.options.path, speed=self.options.speed)
 
-    def _next_message(self) -> tuple[np.ndarray, dict] | None:
+    def _next_message(self) -> SampleBlock | None:
         assert self._messages is not None
-        for t_ns, signals in self._messages:
-            if t_ns.size == 0:
+        for block in self._messages:
+            if len(block) == 0:
                 continue
             if self._first_ns is None:
-                self._first_ns = int(t_ns[0])
-                self._start_data_ns = int(t_ns[0])
-            return t_ns + self._offset_ns, signals
+                self._first_ns = int(block.t_ns[0])
+                self._start_data_ns = int(block.t_ns[0])
+            return self._shifted(block)
         if not self.options.loop or self._first_ns is None or self._last_ns is None:
             return None
         # Loop: times continue one median period after the last sample.
@@ -164,10 +186,15 @@ class ReplaySource(Source):
         period = self._period_ns or 1
         self._offset_ns = self._last_ns + period - self._first_ns  # _last_ns: output time
         self._messages = _iter_file_blocks(self.options.path)
-        for t_ns, signals in self._messages:
-            if t_ns.size:
-                return t_ns + self._offset_ns, signals
+        for block in self._messages:
+            if len(block):
+                return self._shifted(block)
         return None
+
+    def _shifted(self, block: SampleBlock) -> SampleBlock:
+        if not self._offset_ns:
+            return block
+        return SampleBlock(block.t_ns + self._offset_ns, block.signals, block.scales)
 
     def _fill(self, until_ns: int) -> bool:
         """Pull messages until the pending samples reach ``until_ns``; False at the end."""
@@ -175,11 +202,12 @@ class ReplaySource(Source):
             message = self._next_message()
             if message is None:
                 return False
-            t_ns, signals = message
+            t_ns = message.t_ns
             if t_ns.size > 1 and not self._period_ns:
                 self._period_ns = int(np.median(np.diff(t_ns)))
             self._pending_t.append(t_ns)
-            self._pending_s.append(signals)
+            self._pending_s.append(dict(message.signals))
+            self._scales = message.scales
             self._last_ns = int(t_ns[-1])
         return True
 
@@ -195,7 +223,8 @@ class ReplaySource(Source):
         sig_all = {c: np.concatenate([s[c] for s in self._pending_s]) for c in names}
         cut = int(np.searchsorted(t_all, start + block_ns, side="left")) if more else t_all.size
         cut = max(cut, 1)
-        block = SampleBlock(t_all[:cut], {c: v[:cut] for c, v in sig_all.items()})
+        scales = {c: v for c, v in self._scales.items() if c in sig_all}
+        block = SampleBlock(t_all[:cut], {c: v[:cut] for c, v in sig_all.items()}, scales)
         if cut < t_all.size:
             self._pending_t = [t_all[cut:]]
             self._pending_s = [{c: v[cut:] for c, v in sig_all.items()}]

@@ -44,3 +44,12 @@ def pki(tmp_path_factory):
     if OPENSSL is None:
         pytest.skip("needs the openssl command")
     return Pki(tmp_path_factory.mktemp("pki"))
+
+
+@pytest.fixture(scope="session")
+def p12_adc_recording(p12_recording):
+    """The P-12 recording as a 12-bit drive ADC measures it (+-2.5x rated), with "adc" metadata."""
+    from bench.common import adc_full_scale
+    from observer.recording import quantise
+
+    return quantise(p12_recording, adc_full_scale(P12), bits=12)

@@ -43,6 +43,25 @@ def format_estimate(e: dict[str, Any]) -> str:
     return " | ".join(parts)
 
 
+def describe_log(log_config: Any, drive_id: str, motor_id: str = "") -> str:
+    """One line saying where the MCAP log goes and how much of it is kept."""
+    from observer.service.logfiles import log_stem
+
+    if not log_config.dir:
+        return "MCAP log: off ([log] dir is empty)"
+    limits = []
+    if log_config.max_total_gb:
+        limits.append(f"at most {log_config.max_total_gb:g} GB")
+    if log_config.max_age_days:
+        limits.append(f"at most {log_config.max_age_days:g} days old")
+    kept = " and ".join(limits) + ", oldest deleted first" if limits else "never deleted"
+    return (
+        f"MCAP log: {log_config.dir}/{log_stem(log_config.prefix, drive_id, motor_id)}-*.mcap "
+        f"({kept}; "
+        "open them in Foxglove)"
+    )
+
+
 def _load(path: str) -> tuple[Any, Any]:
     from observer.config import load_config
     from observer.service.daemon import make_source
@@ -69,6 +88,7 @@ def main(args: argparse.Namespace) -> int:
         if isinstance(exc, SourceError):
             raise UserError(f"{path}: {exc}") from None
         raise
+    log.info("%s", describe_log(config.log, config.observer.drive_id, config.observer.motor_id))
     sdnotify.status("compiling numba kernels")
     seconds = warm_up_kernels()
     log.info("numba kernels ready in %.1f s", seconds)
@@ -88,7 +108,7 @@ def main(args: argparse.Namespace) -> int:
             log.info("%s", format_estimate(e))
 
     def start(cfg: Any, src: Any) -> Daemon:
-        d = Daemon(cfg, src, on_estimate=on_estimate)
+        d = Daemon(cfg, src, on_estimate=on_estimate, config_path=path)
         d.start()
         return d
 

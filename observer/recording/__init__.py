@@ -4,8 +4,10 @@ Start with :class:`Recording` (:mod:`observer.recording.base`), then
 :func:`read_recording` / :func:`write_recording` below, which pick the format
 by the file name: CSV (:mod:`~observer.recording.csv_format`) or MCAP
 (:mod:`~observer.recording.mcap_reader`, :mod:`~observer.recording.mcap_writer`,
-carrying the messages of :mod:`~observer.recording.sample_block`). Every file
-written (here and by the commands) appears whole or not at all:
+carrying the compact messages of :mod:`~observer.recording.sample_proto`, or
+the older JSON ones of :mod:`~observer.recording.sample_block`). ADC counts and
+their scales (the ``"adc"`` metadata): :mod:`~observer.recording.adc`. Every
+file written (here and by the commands) appears whole or not at all:
 :mod:`~observer.recording.atomic`.
 
 Import rule: this package imports only ``observer.recording`` and
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import os
 
+from observer.recording.adc import ADC_KEY, AdcScale, adc_scales, quantise
 from observer.recording.atomic import AtomicFile, atomic_open, check_writable, is_temporary
 from observer.recording.base import (
     CHANNELS,
@@ -27,7 +30,7 @@ from observer.recording.base import (
 )
 from observer.recording.csv_format import read_csv, write_csv
 from observer.recording.mcap_reader import McapRecordStream, read_mcap
-from observer.recording.mcap_writer import write_mcap
+from observer.recording.mcap_writer import SAMPLE_ENCODINGS, write_mcap
 from observer.recording.sample_block import (
     METADATA_NAME,
     SAMPLE_BLOCK_SCHEMA,
@@ -36,10 +39,20 @@ from observer.recording.sample_block import (
     parse_sample_block,
     sample_block_message,
 )
+from observer.recording.sample_proto import (
+    PROTO_ENCODING,
+    parse_samples,
+    proto_schema_data,
+    sample_block_proto,
+)
 
 __all__ = [
+    "ADC_KEY",
     "AtomicFile",
     "CHANNELS",
+    "PROTO_ENCODING",
+    "SAMPLE_ENCODINGS",
+    "AdcScale",
     "METADATA_NAME",
     "SAMPLES_SCHEMA_NAME",
     "SAMPLES_TOPIC",
@@ -48,14 +61,19 @@ __all__ = [
     "McapRecordStream",
     "Recording",
     "RecordingError",
+    "adc_scales",
     "atomic_open",
     "check_writable",
     "is_temporary",
     "parse_sample_block",
+    "parse_samples",
+    "proto_schema_data",
+    "quantise",
     "read_csv",
     "read_mcap",
     "read_recording",
     "sample_block_message",
+    "sample_block_proto",
     "validate_timebase",
     "write_csv",
     "write_mcap",

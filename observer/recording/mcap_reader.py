@@ -23,6 +23,7 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Message, Metadata
 from mcap.stream_reader import StreamReader
 
+from observer.recording.adc import ADC_KEY, AdcScale
 from observer.recording.base import (
     FloatArray,
     IntArray,
@@ -39,8 +40,8 @@ from observer.recording.sample_block import (
     NS_PER_S,
     SAMPLES_TOPIC,
     _SampleBlockError,
-    parse_sample_block,
 )
+from observer.recording.sample_proto import parse_samples
 
 _log = logging.getLogger(__name__)
 
@@ -219,17 +220,11 @@ def read_mcap(path: PathArg) -> Recording:
 
     times: list[IntArray] = []
     columns: dict[str, list[FloatArray]] = {}
+    scales: dict[str, set[AdcScale]] = {}
     for index, raw in enumerate(content.blocks, start=1):
         where = _message_where(index, raw.log_time)
-        if raw.message_encoding != "json":
-            raise RecordingError(
-                f"message encoding {raw.message_encoding!r}, expected 'json'",
-                path=name,
-                where=where,
-                message_index=index,
-            )
         try:
-            t_ns, signals = parse_sample_block(raw.data)
+            t_ns, signals, block_scales = parse_samples(raw.message_encoding, raw.data)
         except _SampleBlockError as exc:
             raise RecordingError(
                 f"malformed sample block: {exc}",
@@ -251,6 +246,8 @@ def read_mcap(path: PathArg) -> Recording:
         times.append(t_ns)
         for channel, values in signals.items():
             columns[channel].append(values)
+        for channel, scale in block_scales.items():
+            scales.setdefault(channel, set()).add(scale)
 
     sizes = np.array([block.size for block in times], dtype=np.int64)
     starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
@@ -269,4 +266,10 @@ def read_mcap(path: PathArg) -> Recording:
     problem = _samples_problem(t, list(signal_arrays.items()))
     if problem is not None:
         _raise_problem(problem, name, locate)
+    if ADC_KEY not in metadata:
+        # Counts stored with one scale throughout (a daemon log of an ADC source): say so,
+        # so that writing the recording again stores counts again.
+        table = {c: next(iter(s)).as_metadata() for c, s in scales.items() if len(s) == 1}
+        if table:
+            metadata = {**metadata, ADC_KEY: table}
     return Recording(t=t, signals=signal_arrays, metadata=metadata)

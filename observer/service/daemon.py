@@ -16,7 +16,11 @@ in reverse (acquisition, observer, Zenoh undeclared, log finished).
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import logging
+import os
+import socket
 import statistics
 import threading
 import time
@@ -28,7 +32,13 @@ from typing import Any
 from drivers import Source, SourceClosed, source_class
 from observer.config import Config
 from observer.service import sdnotify
-from observer.service.mcaplog import McapLog, to_json
+from observer.service.mcaplog import (
+    CONFIG_METADATA,
+    LOG_METADATA,
+    TIME_BASE,
+    McapLog,
+    to_json,
+)
 from observer.service.ringbuffer import RingBuffer
 from observer.service.window_observer import SlidingWindowObserver, WindowResult
 
@@ -39,6 +49,47 @@ def make_source(config: Config, config_path: str, base_dir: Path) -> Source:
     """The configured source (``[source] kind`` + ``[source.options]``)."""
     cls = source_class(config.source.kind)
     return cls.from_config(config.source.options, source=config_path, base_dir=base_dir)
+
+
+def log_metadata(
+    config: Config, source: Source, config_path: str | None
+) -> dict[str, dict[str, str]]:
+    """The metadata records that say what made a log file: software, ids, configuration."""
+    from observer import __version__
+
+    text = ""
+    if config_path:
+        try:
+            text = Path(config_path).read_text(encoding="utf-8")
+        except OSError as exc:
+            text = f"# cannot read {config_path}: {exc}"
+    return {
+        LOG_METADATA: {
+            "software": "dcobserver",
+            "version": __version__,
+            "drive_id": config.observer.drive_id,
+            "motor_id": config.observer.motor_id,
+            "source": source.name,
+            "host": socket.gethostname(),
+            "pid": str(os.getpid()),
+            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "time_base": TIME_BASE,
+        },
+        CONFIG_METADATA: {
+            "path": str(Path(config_path).resolve()) if config_path else "",
+            "toml": text,
+            "settings_json": json.dumps(dataclasses.asdict(config), default=str),
+        },
+    }
+
+
+def _recording_metadata(config: Config, source: Source) -> dict[str, Any]:
+    return {
+        "generator": "dcobserver run",
+        "drive_id": config.observer.drive_id,
+        "motor_id": config.observer.motor_id,
+        "source": source.name,
+    }
 
 
 class Daemon:
@@ -52,6 +103,8 @@ class Daemon:
         Called in the observer thread with every estimate dict (keep it quick).
     sample_rate_hint_hz : float
         Sizes the ring buffer (``buffer_s`` seconds at this rate).
+    config_path : str, optional
+        The configuration file, whose text every log file carries.
     """
 
     def __init__(
@@ -61,6 +114,7 @@ class Daemon:
         *,
         on_estimate: Callable[[dict[str, Any]], None] | None = None,
         sample_rate_hint_hz: float = 20_000.0,
+        config_path: str | None = None,
     ) -> None:
         from observer.service.zenohconf import names
         from observer.service.zenohpub import ZenohPublisher
@@ -74,7 +128,17 @@ class Daemon:
         self.ring = RingBuffer(max(1024, int(config.observer.buffer_s * sample_rate_hint_hz)))
         self.observer = SlidingWindowObserver(self.ring, config.observer)
         self.zenoh = ZenohPublisher(config.zenoh, self.drive_id, self.motor_id)
-        self.mcap = McapLog(config.log, self.drive_id) if config.log.dir else None
+        self.mcap = (
+            McapLog(
+                config.log,
+                self.drive_id,
+                self.motor_id,
+                metadata=log_metadata(config, source, config_path),
+                recording_metadata=_recording_metadata(config, source),
+            )
+            if config.log.dir
+            else None
+        )
         self.on_estimate = on_estimate
         self.latencies_ms: deque[float] = deque(maxlen=2000)
         self.source_ended = threading.Event()
@@ -191,7 +255,10 @@ class Daemon:
                 return
             self._last_sample_wall = time.monotonic()
             if self.mcap is not None:
-                self.mcap.submit_samples(window.t_ns, window.signals)
+                wall = window.arrival_ns + (time.time_ns() - time.monotonic_ns())
+                self.mcap.submit_samples(
+                    window.t_ns, window.signals, arrival_wall_ns=wall, scales=window.scales
+                )
 
     def _emit(self, result: WindowResult) -> None:
         if result.estimate is None:
@@ -201,7 +268,7 @@ class Daemon:
         self.zenoh.publish("estimate", payload)
         self.latencies_ms.append((time.monotonic_ns() - result.arrival_ns) / 1e6)
         if self.mcap is not None:
-            self.mcap.submit_json("/estimate", result.t1_ns, estimate)
+            self.mcap.submit_json("/estimate", estimate)
         if self.on_estimate is not None:
             self.on_estimate(estimate)
 
@@ -262,7 +329,7 @@ class Daemon:
         health = self.health(state)
         self.zenoh.publish("health", to_json(health))
         if self.mcap is not None:
-            self.mcap.submit_json("/health", time.time_ns(), health)
+            self.mcap.submit_json("/health", health, health["wall_time_ns"])
         if health["flags"]:
             log.info("health: %s", ", ".join(health["flags"]))
         return health

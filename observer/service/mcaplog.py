@@ -1,16 +1,34 @@
-"""The daemon's MCAP log: raw samples, estimates and health, with rotation and crash safety.
+"""The daemon's MCAP log: raw samples, estimates and health, with rotation, retention, metadata.
 
-Raw samples are written exactly as :func:`observer.recording.write_mcap` writes
-recordings (topic :data:`~observer.recording.SAMPLES_TOPIC`, schema
-:data:`~observer.recording.SAMPLE_BLOCK_SCHEMA`), so ``dcobserver estimate``,
-``dcobserver replay`` and the replay source read daemon logs. Estimates and
-health go on ``/estimate`` and ``/health`` as JSON with a JSON schema each
-(Foxglove plots them).
+One time base: every message's ``log_time`` (and ``publish_time``) is
+wall-clock Unix time in nanoseconds, what Foxglove and every MCAP tool
+expect: for raw samples the time the block's first sample reached the
+daemon, for estimates the time they were published, for health the time it
+was taken. The data's own clock (the device's, or a replay's) is in the
+payload: ``t0_ns`` (and ``period_ns``) of a sample block, ``t_ns`` and
+``window`` of an estimate; health carries ``wall_time_ns``.
+
+Raw samples go on :data:`~observer.recording.SAMPLES_TOPIC` as the compact
+protobuf blocks of :mod:`observer.recording.sample_proto` (ADC counts with
+their scale where the source knows them, float64 otherwise), so ``dcobserver
+estimate``, ``dcobserver replay`` and the replay source read daemon logs and
+reproduce the live numbers exactly. Estimates and health go on ``/estimate``
+and ``/health`` as JSON with a JSON schema each (Foxglove plots them).
+
+Each file describes itself in metadata records: :data:`LOG_METADATA`
+(software, version, drive and motor ids, host, time base),
+:data:`CONFIG_METADATA` (the configuration file and the settings in force),
+:data:`CHANNELS_METADATA` (units and ADC scales) and the recording metadata
+that :func:`observer.recording.read_mcap` returns.
 
 Crash safety: the chunk in progress is closed and flushed to the file every
 ``flush_s`` seconds, so a crash or power loss loses at most that much; the
 file left behind is readable up to the last flushed chunk by streaming
 readers, and :func:`recover` rewrites it into a valid indexed file.
+
+Retention (:mod:`observer.service.logfiles`): after each rotation and every
+minute the oldest files of this drive go until the rest fit ``max_total_gb``
+and ``max_age_days``; never the open file. Deletions are logged and counted.
 
 Write errors (disk full, file too large, directory gone) never propagate:
 they are counted, reported in :meth:`McapLog.health`, and a new file is tried
@@ -29,20 +47,44 @@ import threading
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Final
 
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
+from drivers.base import AdcScale
 from observer.config import LogConfig
 from observer.recording import (
-    SAMPLE_BLOCK_SCHEMA,
+    ADC_KEY,
+    METADATA_NAME,
+    PROTO_ENCODING,
     SAMPLES_SCHEMA_NAME,
     SAMPLES_TOPIC,
-    sample_block_message,
+    UNITS,
+    proto_schema_data,
+    sample_block_proto,
 )
+from observer.recording import AdcScale as RecordingScale
+from observer.service.logfiles import Retention, log_stem
 
 log = logging.getLogger(__name__)
+
+LOG_METADATA: Final = "dcobserver.log"
+CONFIG_METADATA: Final = "dcobserver.config"
+CHANNELS_METADATA: Final = "dcobserver.channels"
+TIME_BASE: Final = (
+    "log_time and publish_time: wall-clock Unix time (ns) when the daemon received the "
+    "samples, published the estimate or took the health; data time (source clock) in the "
+    "payload: /samples t0_ns + i*period_ns (+ t_residual_ns), /estimate t_ns and window"
+)
+_MEANINGS: Final = {
+    "va": "armature voltage",
+    "ia": "armature current",
+    "vf": "field voltage",
+    "if": "field current",
+    "omega": "shaft angular speed",
+}
+_RETENTION_EVERY_S: Final = 60.0
 
 ESTIMATE_TOPIC = "/estimate"
 HEALTH_TOPIC = "/health"
@@ -76,13 +118,16 @@ ESTIMATE_SCHEMA: dict[str, Any] = {
     "properties": {
         "drive_id": {"type": "string"},
         "index": {"type": "integer", "description": "Window number since the first sample."},
-        "t_ns": {"type": "integer", "description": "Window end, sample time (ns)."},
+        "t_ns": {
+            "type": "integer",
+            "description": "Window end in data time (the source's clock, ns).",
+        },
         "window": {
             "type": "array",
             "items": {"type": "integer"},
             "minItems": 2,
             "maxItems": 2,
-            "description": "[t0, t1] (ns): samples with t0 < t <= t1.",
+            "description": "[t0, t1] (data time, ns): samples with t0 < t <= t1.",
         },
         "n_samples": {"type": "integer"},
         "elapsed_ms": {"type": "number", "description": "Estimation time (ms)."},
@@ -99,7 +144,7 @@ HEALTH_SCHEMA: dict[str, Any] = {
     "type": "object",
     "properties": {
         "drive_id": {"type": "string"},
-        "wall_time_ns": {"type": "integer"},
+        "wall_time_ns": {"type": "integer", "description": "Wall-clock Unix time (ns)."},
         "uptime_s": {"type": "number"},
         "state": {"type": "string"},
         "flags": {"type": "array", "items": {"type": "string"}},
@@ -136,10 +181,23 @@ def to_json(obj: Any) -> bytes:
     return json.dumps(_json_safe(obj), separators=(",", ":"), allow_nan=False).encode()
 
 
-class _File:
-    """One open MCAP file with its three channels."""
+def _channels_metadata(scales: Mapping[str, AdcScale]) -> dict[str, str]:
+    """Per channel: unit, meaning and ADC scale (if known), each value a JSON string."""
+    out = {}
+    for name, meaning in _MEANINGS.items():
+        entry: dict[str, Any] = {"unit": UNITS[name], "description": meaning}
+        if name in scales:
+            entry[ADC_KEY] = RecordingScale(*scales[name]).as_metadata()
+        out[name] = json.dumps(entry)
+    return out
 
-    def __init__(self, path: Path, chunk_size: int) -> None:
+
+class _File:
+    """One open MCAP file with its three channels and its metadata records."""
+
+    def __init__(
+        self, path: Path, chunk_size: int, metadata: Mapping[str, Mapping[str, str]]
+    ) -> None:
         self.path = path
         # "xb": never overwrite a log, even one of the same second and process.
         self.stream: IO[bytes] = open(path, "xb")  # noqa: SIM115 - closed in finish()
@@ -149,13 +207,17 @@ class _File:
             )
             self.writer.start(profile="", library="dcobserver")
             ids = {}
-            for topic, name, schema in (
-                (SAMPLES_TOPIC, SAMPLES_SCHEMA_NAME, SAMPLE_BLOCK_SCHEMA),
-                (ESTIMATE_TOPIC, ESTIMATE_SCHEMA["title"], ESTIMATE_SCHEMA),
-                (HEALTH_TOPIC, HEALTH_SCHEMA["title"], HEALTH_SCHEMA),
-            ):
-                sid = self.writer.register_schema(name, "jsonschema", json.dumps(schema).encode())
+            sid = self.writer.register_schema(
+                SAMPLES_SCHEMA_NAME, PROTO_ENCODING, proto_schema_data()
+            )
+            ids[SAMPLES_TOPIC] = self.writer.register_channel(SAMPLES_TOPIC, PROTO_ENCODING, sid)
+            for topic, schema in ((ESTIMATE_TOPIC, ESTIMATE_SCHEMA), (HEALTH_TOPIC, HEALTH_SCHEMA)):
+                sid = self.writer.register_schema(
+                    schema["title"], "jsonschema", json.dumps(schema).encode()
+                )
                 ids[topic] = self.writer.register_channel(topic, "json", sid)
+            for name, record in metadata.items():
+                self.writer.add_metadata(name, dict(record))
             self.writer.flush()
             self.stream.flush()
         except BaseException:
@@ -201,6 +263,15 @@ class McapLog:
         ``dir`` must be set.
     drive_id : str
         Part of the file names.
+    motor_id : str
+        Part of the file names when set (one daemon per motor of a drive).
+    metadata : Mapping[str, Mapping[str, str]], optional
+        Metadata records written at the start of every file besides the
+        channels and recording records this class writes (the daemon gives
+        :data:`LOG_METADATA` and :data:`CONFIG_METADATA`).
+    recording_metadata : Mapping[str, Any], optional
+        What :func:`observer.recording.read_mcap` shall return as the log's
+        metadata (the ADC scales are added once known).
     queue_size : int
         Items waiting; beyond it items are dropped and counted.
     retry_s : float
@@ -208,12 +279,29 @@ class McapLog:
     """
 
     def __init__(
-        self, config: LogConfig, drive_id: str, *, queue_size: int = 2000, retry_s: float = 5.0
+        self,
+        config: LogConfig,
+        drive_id: str,
+        motor_id: str = "",
+        *,
+        metadata: Mapping[str, Mapping[str, str]] | None = None,
+        recording_metadata: Mapping[str, Any] | None = None,
+        queue_size: int = 2000,
+        retry_s: float = 5.0,
     ) -> None:
         self.config = config
         self.drive_id = drive_id
         self.dir = Path(config.dir)
         self.retry_s = retry_s
+        self.metadata = dict(metadata or {})
+        self.recording_metadata = dict(recording_metadata or {})
+        self.stem = log_stem(config.prefix, drive_id, motor_id)
+        self.retention = Retention(
+            self.dir,
+            self.stem,
+            max_total_bytes=int(config.max_total_gb * 1e9),
+            max_age_s=config.max_age_days * 86400.0,
+        )
         self._queue: queue.Queue[tuple[str, int, Any] | None] = queue.Queue(queue_size)
         self._file: _File | None = None
         self._lock = threading.Lock()
@@ -229,6 +317,8 @@ class McapLog:
         }
         self._next_try = 0.0
         self._last_flush = time.monotonic()
+        self._next_retention = 0.0
+        self._scales: Mapping[str, AdcScale] = {}
         self._thread = threading.Thread(target=self._run, name="mcap-log", daemon=True)
         self._seq = 0
 
@@ -237,13 +327,28 @@ class McapLog:
     def start(self) -> None:
         self._thread.start()
 
-    def submit_samples(self, t_ns: np.ndarray, signals: Mapping[str, np.ndarray]) -> None:
-        """Queue raw samples (split into ``block_s`` messages when written)."""
-        self._put(("samples", int(t_ns[0]) if len(t_ns) else 0, (t_ns, dict(signals))))
+    def submit_samples(
+        self,
+        t_ns: np.ndarray,
+        signals: Mapping[str, np.ndarray],
+        *,
+        arrival_wall_ns: np.ndarray | None = None,
+        scales: Mapping[str, AdcScale] | None = None,
+    ) -> None:
+        """Queue raw samples (split into ``block_s`` messages when written).
 
-    def submit_json(self, topic: str, log_time_ns: int, obj: Any) -> None:
-        """Queue a JSON message on ``/estimate`` or ``/health``."""
-        self._put((topic, log_time_ns, obj))
+        ``arrival_wall_ns`` (wall-clock Unix ns per sample, when it reached the
+        daemon) gives each message its ``log_time``; without it, now. Channels
+        of ``scales`` are stored as counts where their values allow it exactly.
+        """
+        if arrival_wall_ns is None:
+            arrival_wall_ns = np.full(len(t_ns), time.time_ns(), dtype=np.int64)
+        payload = (t_ns, dict(signals), arrival_wall_ns, dict(scales or {}))
+        self._put(("samples", int(arrival_wall_ns[0]) if len(t_ns) else 0, payload))
+
+    def submit_json(self, topic: str, obj: Any, log_time_ns: int | None = None) -> None:
+        """Queue a JSON message on ``/estimate`` or ``/health``, log time wall clock (now)."""
+        self._put((topic, time.time_ns() if log_time_ns is None else log_time_ns, obj))
 
     def _put(self, item: tuple[str, int, Any]) -> None:
         try:
@@ -254,7 +359,9 @@ class McapLog:
 
     def health(self) -> dict[str, Any]:
         with self._lock:
-            return dict(self._health)
+            out = dict(self._health)
+        out["retention"] = self.retention.health()
+        return out
 
     def close(self, timeout: float = 10.0) -> None:
         """Write what is queued, finish the file (valid, indexed) and stop the thread."""
@@ -281,6 +388,18 @@ class McapLog:
             self._file = None
         self._next_try = time.monotonic() + self.retry_s
 
+    def _file_metadata(self) -> dict[str, Mapping[str, str]]:
+        recording = dict(self.recording_metadata)
+        if self._scales:
+            recording[ADC_KEY] = {
+                c: RecordingScale(*s).as_metadata() for c, s in self._scales.items()
+            }
+        return {
+            **self.metadata,
+            CHANNELS_METADATA: _channels_metadata(self._scales),
+            METADATA_NAME: {"json": json.dumps(recording)},
+        }
+
     def _open(self) -> bool:
         if self._file is not None:
             return True
@@ -288,10 +407,12 @@ class McapLog:
             return False
         self._seq = next(_FILE_NUMBERS)
         stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime())
-        name = f"{self.config.prefix}-{self.drive_id}-{stamp}-{os.getpid()}-{self._seq:04d}.mcap"
+        name = f"{self.stem}-{stamp}-{os.getpid()}-{self._seq:04d}.mcap"
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
-            self._file = _File(self.dir / name, chunk_size=4 * 1024 * 1024)
+            self._file = _File(
+                self.dir / name, chunk_size=4 * 1024 * 1024, metadata=self._file_metadata()
+            )
         except OSError as exc:
             self._error(exc, f"cannot open {self.dir / name}")
             return False
@@ -300,7 +421,16 @@ class McapLog:
             self._health["files"] += 1
             self._health["state"] = "ok"
         log.info("MCAP log: writing %s", self._file.path)
+        self._enforce_retention()
         return True
+
+    def _enforce_retention(self) -> None:
+        self._next_retention = time.monotonic() + _RETENTION_EVERY_S
+        keep = self._file.path if self._file is not None else None
+        try:
+            self.retention.enforce(keep=keep)
+        except OSError as exc:  # never fatal: counted, logged, tried again later
+            self._error(exc, "retention")
 
     def _finish(self) -> None:
         if self._file is None:
@@ -310,8 +440,11 @@ class McapLog:
         except OSError as exc:
             self._error(exc, f"cannot finish {self._file.path}")
         self._file = None
+        self._enforce_retention()
 
     def _write(self, kind: str, log_time: int, payload: Any) -> None:
+        if kind == "samples" and payload[3]:
+            self._scales = payload[3]
         if not self._open():
             with self._lock:
                 self._health["dropped"] += 1
@@ -319,21 +452,34 @@ class McapLog:
         assert self._file is not None
         try:
             if kind == "samples":
-                t_ns, signals = payload
-                present = {c: v for c, v in signals.items() if not np.isnan(v[0])}
-                if not present or not len(t_ns):
-                    return
-                step = self._block_samples(t_ns)
-                for start in range(0, len(t_ns), step):
-                    sl = slice(start, start + step)
-                    data = sample_block_message(t_ns[sl], {c: v[sl] for c, v in present.items()})
-                    self._file.add(SAMPLES_TOPIC, int(t_ns[start]), data)
-                    self._count()
+                self._write_samples(*payload)
             else:
                 self._file.add(kind, log_time, to_json(payload))
                 self._count()
         except (OSError, ValueError) as exc:
             self._error(exc, f"cannot write {self._file.path}")
+
+    def _write_samples(
+        self,
+        t_ns: np.ndarray,
+        signals: Mapping[str, np.ndarray],
+        arrival_wall_ns: np.ndarray,
+        scales: Mapping[str, AdcScale],
+    ) -> None:
+        assert self._file is not None
+        # A channel the source does not provide is NaN in the ring buffer.
+        present = {c: v for c, v in signals.items() if not np.isnan(v[0])}
+        if not present or not len(t_ns):
+            return
+        step = self._block_samples(t_ns)
+        block_scales = {c: RecordingScale(*s) for c, s in scales.items() if c in present}
+        for start in range(0, len(t_ns), step):
+            sl = slice(start, start + step)
+            data = sample_block_proto(
+                t_ns[sl], {c: v[sl] for c, v in present.items()}, block_scales
+            )
+            self._file.add(SAMPLES_TOPIC, int(arrival_wall_ns[start]), data)
+            self._count()
 
     def _block_samples(self, t_ns: np.ndarray) -> int:
         if len(t_ns) < 2:
@@ -346,7 +492,7 @@ class McapLog:
             self._health["messages"] += 1
 
     def _maintain(self) -> None:
-        """Flush every ``flush_s``; rotate by size or age."""
+        """Flush every ``flush_s``; rotate by size or age; retention every minute."""
         if self._file is None:
             return
         now = time.monotonic()
@@ -363,6 +509,8 @@ class McapLog:
                 self._finish()
         except OSError as exc:
             self._error(exc, f"cannot flush {self._file.path}")
+        if now >= self._next_retention:
+            self._enforce_retention()
 
     def _run(self) -> None:
         while True:

@@ -16,11 +16,13 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 
-from drivers.base import CHANNELS, SampleBlock
+from drivers.base import CHANNELS, AdcScale, SampleBlock
 
 
 @dataclass(frozen=True)
@@ -36,12 +38,16 @@ class Window:
         Host monotonic time at which each sample was written to the ring.
     start : int
         Sequence number (0-based count of samples ever written) of the first sample.
+    scales : mapping of channel -> AdcScale
+        The ADC scales of the newest block written (see :class:`drivers.base.SampleBlock`);
+        a consumer recovering counts checks that they reproduce the values.
     """
 
     t_ns: np.ndarray
     signals: dict[str, np.ndarray]
     arrival_ns: np.ndarray
     start: int
+    scales: Mapping[str, AdcScale] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -77,6 +83,7 @@ class RingBuffer:
         self.overruns = 0  # times the consumer was lapped
         self.overrun_samples = 0  # samples the consumer never saw
         self.blocks_written = 0
+        self.scales: Mapping[str, AdcScale] = MappingProxyType({})
         self._cond = threading.Condition()
 
     @property
@@ -120,6 +127,7 @@ class RingBuffer:
             else:
                 self._data[row, pos : pos + first] = values[skip : skip + first]
                 self._data[row, :rest] = values[skip + first :]
+        self.scales = block.scales
         with self._cond:
             self._written = start + count
             self.blocks_written += 1
@@ -154,6 +162,7 @@ class RingBuffer:
             signals={name: self._data[row, idx] for row, name in enumerate(self.channels)},
             arrival_ns=self._arrival[idx],
             start=start,
+            scales=self.scales,
         )
         # Seqlock check: the producer may have overwritten [start, ...) while we
         # copied, or be overwriting it now (slots up to _reserved are in play).

@@ -60,3 +60,17 @@ def test_sample_block_rejects_mismatched_and_unknown_channels():
 def test_unknown_source_name_lists_known_ones():
     with pytest.raises(SourceError, match="replay"):
         source_class("nonexistent")
+
+
+def test_sample_block_carries_adc_counts_and_their_scale():
+    from drivers.base import AdcScale
+
+    scale = AdcScale(lsb=0.25, offset=-1.0, bits=12)
+    block = SampleBlock.from_counts([0, 1, 2], {"ia": [-4, 0, 7]}, {"ia": scale}, {"va": [1, 2, 3]})
+    assert block.signals["ia"].tolist() == [-2.0, -1.0, 0.75]
+    assert block.counts("ia").tolist() == [-4, 0, 7] and block.counts("va") is None
+    assert dict(block.scales) == {"ia": scale}
+    with pytest.raises(ValueError, match="does not have"):
+        SampleBlock([0], {"va": [1.0]}, {"ia": scale})
+    with pytest.raises(ValueError, match="lsb must be > 0"):
+        SampleBlock([0], {"va": [1.0]}, {"va": AdcScale(0.0)})

@@ -203,6 +203,10 @@ def test_garbage_torn_and_corrupted_frames_are_counted_and_the_rest_is_exact(fak
     k = k0 + sample_indices(t, RATE)
     assert k[-1] < len(expected)
     np.testing.assert_allclose(got, quantised[k], rtol=0, atol=1e-9)
+    # The blocks carry the ADC scale: the int16 counts come back exactly (the log stores them).
+    counts = np.concatenate([b.counts("ia") for b in blocks])
+    assert blocks[0].scales["ia"] == (SERIAL_P12_SCALE[1], 0.0, 16)
+    assert np.array_equal(counts, to_counts(expected, SERIAL_P12_SCALE)[k, 1])
     # Lost are exactly the torn and the corrupted frames (frame number = sequence + 1).
     frame_no = np.arange(k[0], k[-1] + 1) + 1
     lost = (frame_no % 11 == 0) | (frame_no % 13 == 0)

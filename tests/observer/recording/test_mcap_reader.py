@@ -62,10 +62,13 @@ def test_mcap_cut_in_the_middle_gives_a_prefix(
     )
 
 
-def test_mcap_any_cut_gives_a_prefix_or_a_clear_error(tmp_path: Path) -> None:
-    rec = make_recording(6000, ("va", "ia"), seed=4)
+@pytest.mark.parametrize(("encoding", "n"), [("protobuf", 40000), ("json", 6000)])
+def test_mcap_any_cut_gives_a_prefix_or_a_clear_error(
+    tmp_path: Path, encoding: str, n: int
+) -> None:
+    rec = make_recording(n, ("va", "ia"), seed=4)  # more than one chunk
     path = tmp_path / "full.mcap"
-    write_mcap(rec, path)
+    write_mcap(rec, path, encoding=encoding)
     data = path.read_bytes()
     cut_path = tmp_path / "cut.mcap"
     lengths: list[int] = []
@@ -201,7 +204,8 @@ def test_mcap_wrong_encoding_and_bad_metadata(tmp_path: Path) -> None:
     good = [block([0, 1000], va=[1.0, 2.0])]
     path = tmp_path / "enc.mcap"
     write_raw_mcap(path, good, samples_encoding="cbor")
-    assert "message encoding 'cbor', expected 'json'" in str(_located_mcap_error(path))
+    error = str(_located_mcap_error(path))
+    assert "message encoding 'cbor', expected 'protobuf' or 'json'" in error
     write_raw_mcap(path, good, metadata={"json": "{broken"})
     assert "metadata record 'dcobserver.recording' is not valid JSON" in str(
         _located_mcap_error(path)

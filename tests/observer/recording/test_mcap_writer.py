@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 
 from observer.recording import (
     CHANNELS,
@@ -36,6 +37,23 @@ def test_mcap_round_trip_is_exact(tmp_path: Path) -> None:
     back = read_recording(path)
     assert back == rec
     assert dict(back.metadata) == METADATA
+
+    with path.open("rb") as stream:  # the default: compact protobuf blocks
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        [schema] = reader.get_summary().schemas.values()
+        assert (schema.name, schema.encoding) == (SAMPLES_SCHEMA_NAME, "protobuf")
+        decoded = [m for _s, _c, _m, m in reader.iter_decoded_messages(topics=[SAMPLES_TOPIC])]
+    assert len(decoded) == 16 and sum(m.n_samples for m in decoded) == 3001
+    assert decoded[0].t0_ns == 123_000_000 and list(decoded[0].va.values) == list(rec["va"][:200])
+
+
+def test_mcap_json_blocks_round_trip_exactly(tmp_path: Path) -> None:
+    """The older encoding, which the bundled recordings still use."""
+    rec = make_recording(3001, start_ns=123_000_000)
+    path = tmp_path / "run.mcap"
+    write_mcap(rec, path, block_s=0.1, encoding="json")
+    back = read_recording(path)
+    assert back == rec
 
     with path.open("rb") as stream:
         reader = make_reader(stream)

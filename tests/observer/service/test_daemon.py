@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from bench.common import adc_full_scale
 from observer.estimation.motor import P12
-from observer.recording import Recording, read_recording, write_recording
+from observer.recording import Recording, quantise, read_recording, write_recording
 from observer.simulation.simulate import simulate
 from replay.source import iter_mcap_blocks
 from tests.peers import child_env, free_port
@@ -39,6 +40,8 @@ def ra_rise_recording(tmp_path_factory):
         signals={c: np.concatenate([a[c], b[c]]) for c in a.channels},
         metadata={"note": "Ra rises 10 % at 8 s"},
     )
+    # As a drive's 12-bit ADC measures it: the log stores counts, replay must still be exact.
+    rec = quantise(rec, adc_full_scale(P12), bits=12)
     path = tmp_path_factory.mktemp("rec") / "ra_rise.mcap"
     write_recording(rec, path)
     return path
@@ -159,6 +162,7 @@ def test_done_when_subscriber_tracks_ra_rise_and_log_is_readable(
     logged = read_recording(files[0])
     original = read_recording(ra_rise_recording)
     assert np.array_equal(logged["ia"], original["ia"])
+    assert logged.metadata["adc"] == original.metadata["adc"]  # stored as ADC counts
     live = [json.loads(m.data) for m in topics["/estimate"]]
     assert len(live) == n_windows
 
@@ -248,7 +252,7 @@ def test_kill_9_leaves_a_log_readable_to_the_last_second_and_recover_fixes_it(
     seen = 0
     while seen < 6000:  # 3 s of samples readable in the file while it is being written
         assert time.monotonic() < deadline, "log did not grow"
-        seen = sum(t.size for t, _ in iter_mcap_blocks(log_file))
+        seen = sum(len(b) for b in iter_mcap_blocks(log_file))
         time.sleep(0.1)
     daemon.proc.send_signal(signal.SIGKILL)
     daemon.proc.wait(10)
@@ -302,6 +306,12 @@ def test_run_without_arguments_runs_the_demo_and_converges(children):
     """The README's main command: the bundled demo, estimates near the P-12's values."""
     assert (REPO / "replay" / "data" / "demo.mcap").stat().st_size < 5e6
     daemon = children(["run"])
+    # The first line says where the demo's log goes, and that it is capped.
+    first = daemon.wait_line(r"INFO", timeout=30)
+    assert f"MCAP log: {REPO / 'dcobserver-logs'}/dcobserver-demo-*.mcap" in first
+    assert "at most 0.2 GB" in first
+    written = daemon.wait_line(r"MCAP log: writing", timeout=60)
+    log_file = Path(written.split("MCAP log: writing ")[1].strip())
     pattern = re.compile(r"armature: R=([\d.]+) ohm \(ok\), L=[\d.e-]+ H \(\w+\), K=([\d.]+) H")
     deadline = time.monotonic() + 60
     while True:
@@ -316,3 +326,8 @@ def test_run_without_arguments_runs_the_demo_and_converges(children):
     assert field_r == pytest.approx(P12.field_resistance_ohm, rel=0.01)
     daemon.proc.send_signal(signal.SIGINT)
     assert daemon.proc.wait(30) == 0
+    try:  # Ctrl-C finished the demo's log: a valid file with samples and estimates
+        schemas, topics = _mcap_messages(log_file)
+        assert topics["/samples"] and topics["/estimate"]
+    finally:
+        log_file.unlink(missing_ok=True)
