@@ -17,6 +17,7 @@ in reverse (acquisition, observer, Zenoh undeclared, log finished).
 from __future__ import annotations
 
 import dataclasses
+import importlib.metadata
 import json
 import logging
 import os
@@ -55,8 +56,6 @@ def log_metadata(
     config: Config, source: Source, config_path: str | None
 ) -> dict[str, dict[str, str]]:
     """The metadata records that say what made a log file: software, ids, configuration."""
-    from observer import __version__
-
     text = ""
     if config_path:
         try:
@@ -66,7 +65,7 @@ def log_metadata(
     return {
         LOG_METADATA: {
             "software": "dcobserver",
-            "version": __version__,
+            "version": _version(),
             "drive_id": config.observer.drive_id,
             "motor_id": config.observer.motor_id,
             "source": source.name,
@@ -81,6 +80,14 @@ def log_metadata(
             "settings_json": json.dumps(dataclasses.asdict(config), default=str),
         },
     }
+
+
+def _version() -> str:
+    """The installed dcobserver's version (the package metadata: no import of ``observer``)."""
+    try:
+        return importlib.metadata.version("dcobserver")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 def _recording_metadata(config: Config, source: Source) -> dict[str, Any]:

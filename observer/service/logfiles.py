@@ -4,7 +4,8 @@ The files of one daemon are ``<stem>-<UTC stamp>-<pid>-<n>.mcap`` with ``stem``
 ``<prefix>-<drive_id>`` or ``<prefix>-<drive_id>-<motor_id>`` (:func:`log_stem`);
 their names sort by the time they were started. :class:`Retention` deletes
 the oldest of them until the rest fit the budget, never the file being
-written, logs every deletion and counts them for the daemon's health.
+written nor the newest one, logs every deletion and counts them for the
+daemon's health.
 """
 
 from __future__ import annotations
@@ -49,9 +50,7 @@ class Retention:
         Files last modified longer ago than this are deleted; 0: no limit.
     """
 
-    def __init__(
-        self, folder: Path, stem: str, *, max_total_bytes: int, max_age_s: float
-    ) -> None:
+    def __init__(self, folder: Path, stem: str, *, max_total_bytes: int, max_age_s: float) -> None:
         self.folder = Path(folder)
         self.stem = stem
         self._names = re.compile(re.escape(stem) + r"-\d{8}T\d{6}-\d+-\d+\.mcap")
@@ -89,7 +88,7 @@ class Retention:
         return sorted(found, key=lambda f: (f.path.name, f.mtime))
 
     def enforce(self, keep: Path | None = None, now: float | None = None) -> list[Path]:
-        """Delete the oldest files beyond the budget; never ``keep`` (the open file).
+        """Delete the oldest files beyond the budget; never ``keep`` (the open file) nor the newest.
 
         Returns
         -------
@@ -100,7 +99,7 @@ class Retention:
         now = time.time() if now is None else now
         total = sum(f.size for f in files)
         deleted = []
-        for f in files:
+        for f in files[:-1]:  # the newest file holds the newest data: it always stays
             if keep is not None and f.path == keep:
                 continue
             too_old = self.max_age_s > 0 and now - f.mtime > self.max_age_s

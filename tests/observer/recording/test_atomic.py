@@ -117,7 +117,7 @@ def test_an_interrupted_recording_write_leaves_the_previous_file(
     # Interrupt the write half-way, as Ctrl-C would.
     if name.endswith(".mcap"):
         calls = {"n": 0}
-        real = mcap_writer.sample_block_message
+        real = mcap_writer.sample_block_proto
 
         def interrupted(*a, **k):  # type: ignore[no-untyped-def]
             calls["n"] += 1
@@ -125,7 +125,7 @@ def test_an_interrupted_recording_write_leaves_the_previous_file(
                 raise KeyboardInterrupt
             return real(*a, **k)
 
-        monkeypatch.setattr(mcap_writer, "sample_block_message", interrupted)
+        monkeypatch.setattr(mcap_writer, "sample_block_proto", interrupted)
     else:
         from observer.recording import csv_format
 
