@@ -31,11 +31,13 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from functools import cache
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import numpy as np
 import numpy.typing as npt
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+if TYPE_CHECKING:
+    from google.protobuf import descriptor_pb2
 
 from observer.recording.adc import AdcScale, scale_problem
 from observer.recording.base import CHANNELS, UNITS, FloatArray, IntArray
@@ -60,6 +62,9 @@ _MEANINGS: Final = {
 
 
 def _file_descriptor() -> descriptor_pb2.FileDescriptorProto:
+    # protobuf is imported where it is needed: ~70 ms that commands not touching MCAP skip.
+    from google.protobuf import descriptor_pb2
+
     field = descriptor_pb2.FieldDescriptorProto
     package, message = SAMPLES_SCHEMA_NAME.split(".")
     fd = descriptor_pb2.FileDescriptorProto(name=_PROTO_FILE, package=package, syntax="proto3")
@@ -103,6 +108,8 @@ def _file_descriptor() -> descriptor_pb2.FileDescriptorProto:
 
 @cache
 def _message_class() -> Any:
+    from google.protobuf import descriptor_pool, message_factory
+
     pool = descriptor_pool.DescriptorPool()
     pool.Add(_file_descriptor())
     return message_factory.GetMessageClass(pool.FindMessageTypeByName(SAMPLES_SCHEMA_NAME))
@@ -110,6 +117,8 @@ def _message_class() -> Any:
 
 def proto_schema_data() -> bytes:
     """The schema record's data: a serialized ``FileDescriptorSet`` of the message."""
+    from google.protobuf import descriptor_pb2
+
     file_set = descriptor_pb2.FileDescriptorSet()
     file_set.file.append(_file_descriptor())
     return file_set.SerializeToString()
