@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.common import adc_full_scale, machine_info  # noqa: E402
+from bench.common import adc_full_scale, machine_description  # noqa: E402
 from observer.config import LogConfig  # noqa: E402
 from observer.estimation.motor import P12  # noqa: E402
 from observer.recording import AdcScale, Recording, adc_scales, quantise, write_mcap  # noqa: E402
@@ -77,7 +77,7 @@ def main() -> int:
             after = _live_log_bytes(rec, folder / f"after-{len(rows)}", pace=not args.no_pace)
             rows.append((label, before.stat().st_size / n, after / n))
     print(f"# Log size, {args.rate:g} Hz x 5 channels, {args.duration:g} s, P-12 0.2 % noise")
-    print(f"# {machine_info()}")
+    print(f"# {machine_description()}")
     print("| samples | before: JSON blocks (B/sample) | after: daemon log (B/sample) | ratio |")
     print("|---|---|---|---|")
     for label, before_b, after_b in rows:

@@ -114,7 +114,9 @@ def iter_mcap_blocks(path: str | os.PathLike[str]) -> Iterator[SampleBlock]:
 
 
 def _iter_file_blocks(path: str) -> Iterator[SampleBlock]:
-    if path.lower().endswith(".mcap"):
+    from observer.recording import final_path
+
+    if final_path(path).name.lower().endswith(".mcap"):
         yield from iter_mcap_blocks(path)
         return
     from observer.recording import adc_scales, read_recording

@@ -19,7 +19,13 @@ from __future__ import annotations
 import os
 
 from observer.recording.adc import ADC_KEY, AdcScale, adc_scales, quantise
-from observer.recording.atomic import AtomicFile, atomic_open, check_writable, is_temporary
+from observer.recording.atomic import (
+    AtomicFile,
+    atomic_open,
+    check_writable,
+    final_path,
+    is_temporary,
+)
 from observer.recording.base import (
     CHANNELS,
     UNITS,
@@ -64,6 +70,7 @@ __all__ = [
     "adc_scales",
     "atomic_open",
     "check_writable",
+    "final_path",
     "is_temporary",
     "parse_sample_block",
     "parse_samples",
@@ -82,7 +89,9 @@ __all__ = [
 
 
 def _format_of(path: PathArg) -> str:
-    lower = os.fspath(path).lower()
+    # A file still being written (or cut by a crash) under its temporary name has the
+    # format of its final name.
+    lower = os.fspath(final_path(path)).lower()
     if lower.endswith((".csv", ".csv.gz")):
         return "csv"
     if lower.endswith(".mcap"):

@@ -134,7 +134,7 @@ class AtomicFile:
 
     @property
     def closed(self) -> bool:
-        """Whether :meth:`commit` or :meth:`discard` has run."""
+        """Whether :meth:`commit`, :meth:`discard` or :meth:`leave` has run."""
         return self._done
 
     def commit(self) -> Path:
@@ -195,6 +195,24 @@ class AtomicFile:
         with contextlib.suppress(OSError):
             self.stream.close()
         self._unlink_temp()
+
+    def leave(self) -> Path:
+        """Close the file but leave it under its temporary name; the final name is not touched.
+
+        For a long-lived file whose partial content is worth more than nothing
+        (the daemon's log after a write error): it is found again by
+        :func:`is_temporary` and :func:`final_path` and recovered later. Idempotent.
+
+        Returns
+        -------
+        pathlib.Path
+            The temporary name the bytes stay under.
+        """
+        if not self._done:
+            self._done = True
+            with contextlib.suppress(OSError):
+                self.stream.close()
+        return self.temp_path
 
     def _unlink_temp(self) -> None:
         with contextlib.suppress(FileNotFoundError):

@@ -70,6 +70,10 @@ class Retention:
         with self._lock:
             return dict(self._health)
 
+    def owns(self, name: str) -> bool:
+        """Whether a file name is one of this daemon's log files."""
+        return self._names.fullmatch(name) is not None
+
     def files(self) -> list[_LogFile]:
         """This daemon's log files, oldest first (by name: the names start with the UTC time)."""
         found = []
@@ -78,7 +82,7 @@ class Retention:
         except FileNotFoundError:
             return []
         for entry in entries:
-            if not self._names.fullmatch(entry.name):
+            if not self.owns(entry.name):
                 continue
             try:
                 stat = entry.stat()

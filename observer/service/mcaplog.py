@@ -37,6 +37,7 @@ after ``retry_s``.
 
 from __future__ import annotations
 
+import fcntl
 import itertools
 import json
 import logging
@@ -46,6 +47,7 @@ import queue
 import threading
 import time
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Final
 
@@ -61,6 +63,7 @@ from observer.recording import (
     SAMPLES_SCHEMA_NAME,
     SAMPLES_TOPIC,
     UNITS,
+    AtomicFile,
     proto_schema_data,
     sample_block_proto,
 )
@@ -193,15 +196,24 @@ def _channels_metadata(scales: Mapping[str, AdcScale]) -> dict[str, str]:
 
 
 class _File:
-    """One open MCAP file with its three channels and its metadata records."""
+    """One open MCAP file with its three channels and its metadata records.
+
+    Written under a temporary name (:class:`observer.recording.AtomicFile`) and
+    renamed to ``path`` by :meth:`finish` once complete, so a file under a
+    final name is always a finished, indexed MCAP file. The temporary file is
+    locked (``flock``) while open: a daemon starting beside a running one never
+    mistakes the other's open file for one cut by a crash.
+    """
 
     def __init__(
         self, path: Path, chunk_size: int, metadata: Mapping[str, Mapping[str, str]]
     ) -> None:
         self.path = path
-        # "xb": never overwrite a log, even one of the same second and process.
-        self.stream: IO[bytes] = open(path, "xb")  # noqa: SIM115 - closed in finish()
+        # overwrite=False: never replace a log, even one of the same second and process.
+        self.out = AtomicFile(path, overwrite=False)
+        self.stream: IO[bytes] = self.out.stream
         try:
+            fcntl.flock(self.stream.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
             self.writer = Writer(
                 self.stream, chunk_size=chunk_size, compression=CompressionType.ZSTD
             )
@@ -221,10 +233,15 @@ class _File:
             self.writer.flush()
             self.stream.flush()
         except BaseException:
-            self.stream.close()
+            self.out.discard()
             raise
         self.channels = ids
         self.opened = time.monotonic()
+
+    @property
+    def temp_path(self) -> Path:
+        """Where the bytes are until :meth:`finish`."""
+        return self.out.temp_path
 
     def add(self, topic: str, log_time_ns: int, data: bytes) -> None:
         t = max(0, int(log_time_ns))
@@ -239,19 +256,20 @@ class _File:
     def size(self) -> int:
         return self.stream.tell()
 
-    def finish(self) -> None:
+    def finish(self) -> Path:
+        """Write the summary, make it durable and give the file its final name."""
         try:
             self.writer.finish()
             self.stream.flush()
             os.fsync(self.stream.fileno())
-        finally:
-            self.stream.close()
+        except BaseException:
+            self.out.leave()  # a full disk: what was written stays, for recovery at the next start
+            raise
+        return self.out.commit()
 
     def abandon(self) -> None:
-        try:
-            self.stream.close()
-        except OSError:
-            pass
+        """Close after a write error, leaving the partial file for recovery at the next start."""
+        self.out.leave()
 
 
 class McapLog:
@@ -314,6 +332,8 @@ class McapLog:
             "dropped": 0,
             "last_error": "",
             "state": "starting",
+            "recovered_files": 0,
+            "recovered_messages": 0,
         }
         self._next_try = 0.0
         self._last_flush = time.monotonic()
@@ -420,7 +440,11 @@ class McapLog:
             self._health["file"] = str(self._file.path)
             self._health["files"] += 1
             self._health["state"] = "ok"
-        log.info("MCAP log: writing %s", self._file.path)
+        log.info(
+            "MCAP log: writing %s (as %s until it is complete)",
+            self._file.path,
+            self._file.temp_path.name,
+        )
         self._enforce_retention()
         return True
 
@@ -436,7 +460,8 @@ class McapLog:
         if self._file is None:
             return
         try:
-            self._file.finish()
+            path = self._file.finish()
+            log.info("MCAP log: finished %s", path)
         except OSError as exc:
             self._error(exc, f"cannot finish {self._file.path}")
         self._file = None
@@ -512,7 +537,24 @@ class McapLog:
         if now >= self._next_retention:
             self._enforce_retention()
 
+    def _recover_leftovers(self) -> None:
+        """Recover this daemon's logs that a crash left under their temporary names."""
+        try:
+            results = recover_cut_logs(self.dir, self.retention)
+        except OSError as exc:
+            self._error(exc, "cannot look for logs cut by a crash")
+            return
+        for result in results:
+            with self._lock:
+                if result.error:
+                    self._health["errors"] += 1
+                    self._health["last_error"] = result.error
+                else:
+                    self._health["recovered_files"] += 1
+                    self._health["recovered_messages"] += result.messages
+
     def _run(self) -> None:
+        self._recover_leftovers()
         while True:
             try:
                 item = self._queue.get(timeout=min(0.2, self.config.flush_s))
@@ -528,6 +570,85 @@ class McapLog:
                 self._maintain()
             except Exception as exc:  # the log thread must never die silently
                 self._error(exc, "unexpected error")
+
+
+@dataclass(frozen=True)
+class Recovered:
+    """What became of one log file a crash left behind."""
+
+    cut: Path
+    recovered: Path | None
+    messages: int = 0
+    error: str = ""
+
+
+def recover_cut_logs(folder: Path, retention: Retention) -> list[Recovered]:
+    """Recover the logs a crash left in ``folder`` under their temporary names.
+
+    Each such file of this daemon (its final name matches ``retention``'s), not
+    locked by a live writer, is rewritten as a valid file under its final name
+    (:func:`recover`); the result is opened with mcap's indexed reader and every
+    message read back before the cut original is deleted. A file holding no
+    complete message is deleted; one that cannot be recovered is left as it is
+    and reported.
+    """
+    from observer.recording import RecordingError, final_path, is_temporary
+
+    results = []
+    try:
+        entries = sorted(folder.iterdir())
+    except FileNotFoundError:
+        return []
+    for cut in entries:
+        if not is_temporary(cut) or not retention.owns(final_path(cut).name):
+            continue
+        final = final_path(cut)
+        try:
+            with open(cut, "rb") as probe:
+                try:
+                    fcntl.flock(probe.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    continue  # a live daemon is writing it
+                if final.exists():  # recovered before, but the original was not yet deleted
+                    n = _verified_messages(final)
+                else:
+                    n = recover(cut, final, overwrite=False)
+                    if _verified_messages(final) != n:
+                        raise RecordingError("the recovered file does not read back", path=final)
+            cut.unlink()
+        except RecordingError as exc:
+            if "nothing to recover" in str(exc):
+                cut.unlink(missing_ok=True)
+                log.info("MCAP log: removed %s, cut by a crash before any data", cut.name)
+                continue
+            results.append(Recovered(cut, None, error=f"cannot recover {cut}: {exc}"))
+            log.error("MCAP log: cannot recover %s (left as it is): %s", cut, exc)
+            continue
+        except OSError as exc:
+            results.append(Recovered(cut, None, error=f"cannot recover {cut}: {exc}"))
+            log.error("MCAP log: cannot recover %s (left as it is): %s", cut, exc)
+            continue
+        log.info("MCAP log: recovered %s (%d messages) from a log cut by a crash", final, n)
+        results.append(Recovered(cut, final, n))
+    return results
+
+
+def _verified_messages(path: Path) -> int:
+    """Messages in a finished file, read back whole by mcap's indexed reader with CRC checks."""
+    from mcap.reader import make_reader
+
+    from observer.recording import RecordingError
+
+    try:
+        with open(path, "rb") as stream:
+            reader = make_reader(stream, validate_crcs=True)
+            summary = reader.get_summary()
+            n = sum(1 for _ in reader.iter_messages(log_time_order=False))
+    except Exception as exc:  # mcap raises its own errors, struct.error, zstd errors...
+        raise RecordingError(f"does not read back: {exc}", path=path) from None
+    if summary is None or summary.statistics is None or summary.statistics.message_count != n:
+        raise RecordingError("its summary does not count its messages", path=path)
+    return n
 
 
 def recover(

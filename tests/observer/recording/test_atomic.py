@@ -157,3 +157,13 @@ def test_gzip_output_names_the_final_file_not_the_temporary(tmp_path: Path) -> N
     assert b"named.csv" in path.read_bytes()[:40]
     assert b"partial" not in path.read_bytes()[:40]
     assert np.isfinite(read_recording(path).t).all()
+
+
+def test_leave_keeps_the_partial_file_under_its_temporary_name(tmp_path: Path) -> None:
+    out = AtomicFile(tmp_path / "log.mcap")
+    out.stream.write(b"an hour of log before the disk filled")
+    assert out.leave() == out.temp_path and out.closed
+    del out  # dropping it must not remove what was left
+    (left,) = tmp_path.iterdir()
+    assert is_temporary(left) and final_path(left) == tmp_path / "log.mcap"
+    assert left.read_bytes().startswith(b"an hour")

@@ -247,7 +247,9 @@ def test_kill_9_leaves_a_log_readable_to_the_last_second_and_recover_fixes_it(
     assert query.proc.wait(60) == 0, "".join(query.stderr)
     latest = json.loads(next(x for x in query.stdout if x.startswith("{")))
     assert latest["drive_id"] == "test" and latest["armature"]["R"] > 0
-    (log_file,) = log_dir.glob("*.mcap")
+    # The open file has a hidden temporary name until it is complete (never a cut final name).
+    assert not list(log_dir.glob("*.mcap"))
+    (log_file,) = log_dir.glob(".*.mcap.partial-*")
     deadline = time.monotonic() + 60
     seen = 0
     while seen < 6000:  # 3 s of samples readable in the file while it is being written
@@ -311,7 +313,7 @@ def test_run_without_arguments_runs_the_demo_and_converges(children):
     assert f"MCAP log: {REPO / 'dcobserver-logs'}/dcobserver-demo-*.mcap" in first
     assert "at most 0.2 GB" in first
     written = daemon.wait_line(r"MCAP log: writing", timeout=60)
-    log_file = Path(written.split("MCAP log: writing ")[1].strip())
+    log_file = Path(written.split("MCAP log: writing ")[1].split(" (as ")[0])
     pattern = re.compile(r"armature: R=([\d.]+) ohm \(ok\), L=[\d.e-]+ H \(\w+\), K=([\d.]+) H")
     deadline = time.monotonic() + 60
     while True:
