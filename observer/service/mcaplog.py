@@ -21,10 +21,13 @@ Each file describes itself in metadata records: :data:`LOG_METADATA`
 :data:`CHANNELS_METADATA` (units and ADC scales) and the recording metadata
 that :func:`observer.recording.read_mcap` returns.
 
-Crash safety: the chunk in progress is closed and flushed to the file every
-``flush_s`` seconds, so a crash or power loss loses at most that much; the
-file left behind is readable up to the last flushed chunk by streaming
-readers, and :func:`recover` rewrites it into a valid indexed file.
+Crash safety: a file is written under a hidden temporary name, locked while
+open, and renamed when complete (:class:`observer.recording.AtomicFile`), so a
+final name is always a valid, indexed file. The chunk in progress is closed
+and flushed to the file every ``flush_s`` seconds, so a crash or power loss
+loses about that much. At start the log thread recovers this daemon's files
+a crash left under temporary names (:func:`recover_cut_logs`: rewritten by
+:func:`recover`, read back whole, and only then the original deleted).
 
 Retention (:mod:`observer.service.logfiles`): after each rotation and every
 minute the oldest files of this drive go until the rest fit ``max_total_gb``
