@@ -76,15 +76,11 @@ def main(args: argparse.Namespace) -> int:
     import zenoh
 
     from observer.cli import UserError
-    from observer.config import ZenohFileConfig, ZenohLinkConfig, load_config
+    from observer.commands.subscribe import session_link
     from observer.service import sdnotify
-    from observer.service.zenohconf import session_config, with_endpoints
+    from observer.service.zenohconf import session_config
 
-    link = load_config(args.config, ZenohFileConfig).zenoh if args.config else ZenohLinkConfig()
-    try:
-        link = with_endpoints(link, args.listen, args.connect, default_listen=[DEFAULT_LISTEN])
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    link = session_link(args, default_listen=[DEFAULT_LISTEN], default_connect=())
     config = session_config(link, "router")
     if args.print_zenoh_config:
         print(json.dumps(config, indent=2))

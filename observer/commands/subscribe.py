@@ -12,8 +12,12 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
+
+if TYPE_CHECKING:
+    from observer.config import ZenohLinkConfig
 
 DEFAULT_KEYEXPR = "dcobserver/**/estimate"
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
@@ -189,15 +193,25 @@ def _draw(out: TextIO, lines: list[str], in_place: bool) -> None:
 # ---------------------------------------------------------------------------- session
 
 
-def session_link(args: argparse.Namespace) -> Any:
-    """The session's endpoints and security: the ``--config`` file's, endpoints overridden."""
+def session_link(
+    args: argparse.Namespace,
+    *,
+    default_listen: Sequence[str] = (),
+    default_connect: Sequence[str] = (DEFAULT_CONNECT,),
+) -> ZenohLinkConfig:
+    """The session's endpoints and security: ``args.config``'s ``[zenoh]`` table, its
+    endpoints overridden by ``args.listen``/``args.connect``, else the defaults (``router``
+    uses it too)."""
     from observer.cli import UserError
     from observer.config import ZenohFileConfig, ZenohLinkConfig, load_config
     from observer.service.zenohconf import with_endpoints
 
     link = load_config(args.config, ZenohFileConfig).zenoh if args.config else ZenohLinkConfig()
     try:
-        return with_endpoints(link, args.listen, args.connect, default_connect=[DEFAULT_CONNECT])
+        return with_endpoints(
+            link, args.listen, args.connect,
+            default_listen=default_listen, default_connect=default_connect,
+        )  # fmt: skip
     except ValueError as exc:
         raise UserError(str(exc)) from None
 

@@ -7,10 +7,12 @@ import re
 import time
 from pathlib import Path
 
+import pytest
+
 from observer.commands.subscribe import FleetTable, format_line, quality
 from observer.config import ZenohFileConfig, load_config
 from tests.peers import REPO, free_port
-from tests.pki import make_certs
+from tests.pki import OPENSSL, make_certs
 
 FLEET = REPO / "config" / "fleet"
 DEMO = REPO / "replay" / "data" / "demo.mcap"
@@ -20,6 +22,8 @@ DAEMONS = ("shovel1-hoist", "shovel1-crowd", "shovel2-hoist")
 def fleet_copy(tmp_path):
     """config/fleet/ in a temporary folder, on a free port, with its certificates made by
     config/fleet/make-certs.sh as the README says."""
+    if OPENSSL is None:
+        pytest.skip("needs the openssl command")
     folder = tmp_path / "fleet"
     folder.mkdir()
     endpoint = f"127.0.0.1:{free_port()}"
