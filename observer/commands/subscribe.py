@@ -23,8 +23,12 @@ DEFAULT_KEYEXPR = "dcobserver/**/estimate"
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 
 #: Parameter quality, worst last (the quality column shows the worst of a motor's values).
-QUALITY_ORDER = ("ok", "unconfirmed", "held", "none")
-QUALITY_MARK = {"ok": " ", "held": "h", "unconfirmed": "?", "none": "-"}
+#: ("change", "outlier": the tracker's, issue 11; "unconfirmed": the window fits' before it.)
+QUALITY_ORDER = ("ok", "change", "outlier", "unconfirmed", "held", "none")
+QUALITY_MARK = {
+    "ok": " ", "change": "c", "outlier": "o", "unconfirmed": "?", "held": "h", "none": "-",
+}  # fmt: skip
+LEGEND = "h: held, ?: unconfirmed, c: change being confirmed, o: outlier, -: none"
 #: (column title, circuit, parameter) of the values shown.
 VALUES = (
     ("Rf ohm", "field", "R"),
@@ -94,9 +98,12 @@ def _value(e: dict[str, Any], circuit: str, param: str) -> str:
 
 
 def _temperature(e: dict[str, Any], circuit: str) -> str:
-    """A winding's temperature (degC) when the estimate carries one (the tracker's), else '-'."""
-    c = e.get(circuit) or {}
-    t = c.get("temperature_c")
+    """A winding's temperature (degC) when the estimate carries one, else '-'.
+
+    The tracker (issue 11) publishes ``temperature: {field: {C, std}, armature: {C, std}}``
+    where a reference resistance is configured.
+    """
+    t = ((e.get("temperature") or {}).get(circuit) or {}).get("C")
     return "-" if not isinstance(t, int | float) else f"{t:.1f}"
 
 
@@ -123,7 +130,7 @@ def names_of(key_expr: str, message: dict[str, Any]) -> tuple[str, str, str]:
 LINE_HEADER = (
     f"{'drive':<12} {'motor':<8} {'t (s)':>9} "
     + " ".join(f"{title:>11}" for title, _c, _p in VALUES)
-    + f" {'Tf C':>6} {'Ta C':>6}    (h: held, ?: unconfirmed, -: none)"
+    + f" {'Tf C':>6} {'Ta C':>6}    ({LEGEND})"
 )
 
 
@@ -146,6 +153,7 @@ class _Motor:
     estimate: dict[str, Any] = field(default_factory=dict)
     received: float | None = None
     health: str = "-"
+    event: str = ""
 
 
 class FleetTable:
@@ -168,6 +176,8 @@ class FleetTable:
         elif leaf in ("estimate", "latest"):
             row.estimate = message
             row.received = now
+        elif leaf == "event":  # the tracker's change and tachometer events (issue 11)
+            row.event = str(message.get("message") or json.dumps(message))[:80]
 
     def render(self, now: float) -> list[str]:
         lines = [self.HEADER]
@@ -176,10 +186,11 @@ class FleetTable:
             cells = " ".join(_value(e, c, p) for _title, c, p in VALUES)
             temps = f"{_temperature(e, 'field'):>6} {_temperature(e, 'armature'):>6}"
             age = "-" if row.received is None else f"{now - row.received:.1f}"
+            status = row.health + (f"; last event: {row.event}" if row.event else "")
             lines.append(
-                f"{drive:<12} {motor:<8} {cells} {temps} {quality(e):<11} {age:>6}  {row.health}"
+                f"{drive:<12} {motor:<8} {cells} {temps} {quality(e):<11} {age:>6}  {status}"
             )
-        lines.append("(h: held, ?: unconfirmed, -: none; age: since the last estimate arrived)")
+        lines.append(f"({LEGEND}; age: seconds since the last estimate arrived)")
         return lines
 
 

@@ -108,13 +108,14 @@ def test_the_table_keeps_one_row_per_motor_with_its_latest_estimate_and_health()
     table = FleetTable()
     estimate = {
         "drive_id": "shovel1", "motor_id": "hoist", "t_ns": 5_000_000_000,
-        "field": {"R": 185.04, "L": 50.1, "quality": {"R": "ok", "L": "held"},
-                  "temperature_c": 61.27},
+        "field": {"R": 185.04, "L": 50.1, "quality": {"R": "ok", "L": "held"}},
+        "temperature": {"field": {"C": 61.27, "std": 0.4}},
         "armature": {"R": 3.5012, "L": None, "K": 1.1213,
                      "quality": {"R": "ok", "L": "none", "K": "ok"}},
     }  # fmt: skip
     table.update("dcobserver/shovel1/hoist/estimate", estimate, now=100.0)
     table.update("dcobserver/shovel1/hoist/health", {"flags": ["source_stalled"]}, now=100.5)
+    table.update("dcobserver/shovel2/event", {"message": "Ra +3.1 % at 12.40 s"}, now=100.7)
     # A drive with one motor (no motor_id) and no estimate yet: health only.
     table.update("dcobserver/shovel2/health", {"drive_id": "shovel2", "flags": []}, now=101.0)
     header, hoist, shovel2, legend = table.render(now=102.0)
@@ -124,7 +125,8 @@ def test_the_table_keeps_one_row_per_motor_with_its_latest_estimate_and_health()
     assert "185.04" in cells and "50.1h" in cells and "3.5012" in cells and "1.1213" in cells
     assert "61.3" in cells  # the field winding's temperature, when the estimate has one
     assert cells[-3:] == ["none", "2.0", "source_stalled"]  # worst quality, age (s), health
-    assert shovel2.split()[:2] == ["shovel2", "-"] and shovel2.split()[-2:] == ["-", "ok"]
+    assert shovel2.split()[:2] == ["shovel2", "-"]
+    assert shovel2.endswith("  ok; last event: Ra +3.1 % at 12.40 s")
     assert "held" in legend
     assert quality({"field": {"R": 1.0, "quality": {"R": "ok"}}}) == "ok"
     assert format_line("dcobserver/shovel2/health", {"flags": []}).split()[-2:] == ["health:", "ok"]
