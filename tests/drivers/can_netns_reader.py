@@ -20,7 +20,9 @@ from tests.drivers.peers import collect, to_recording
 def main() -> int:
     group, n, out = sys.argv[1], int(sys.argv[2]), sys.argv[3]
     fake_args = sys.argv[sys.argv.index("--") + 1 :]
-    with CanSource(interface="udp_multicast", channel=group) as src:
+    # The fake drive starts after the subscription and may take seconds to import and
+    # simulate its first chunk on a loaded machine: staleness is not what this tests.
+    with CanSource(interface="udp_multicast", channel=group, stale_timeout_s=30.0) as src:
         src.read(timeout=0.1)  # the pump opens the bus: subscribed before the drive starts
         if not src.wait_connected(10):
             raise SystemExit("could not open the udp_multicast bus")
