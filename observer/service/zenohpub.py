@@ -149,8 +149,22 @@ class ZenohPublisher:
         return True
 
     def health(self) -> dict[str, Any]:
+        """Counters, and whether any subscriber matches the estimates now.
+
+        ``subscriber_matched`` stays false where access control keeps this drive's
+        estimates from everyone (its identity not listed for the drive): Zenoh drops
+        denied messages without an error, so this is where a wrong grant shows.
+        """
         with self._lock:
-            return dict(self._health)
+            health = dict(self._health)
+        publisher = self._publishers.get("estimate")
+        try:
+            health["subscriber_matched"] = bool(
+                publisher is not None and publisher.matching_status.matching
+            )
+        except Exception:  # a publisher closing under us: not matched
+            health["subscriber_matched"] = False
+        return health
 
     def close(self) -> None:
         """Undeclare and close the session (reverse order of opening)."""

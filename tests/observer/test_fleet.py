@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from observer.cli import main as cli_main
 from observer.commands.subscribe import FleetTable, format_line, quality
 from observer.config import ZenohFileConfig, load_config
 from tests.peers import REPO, free_port
@@ -130,3 +131,13 @@ def test_the_table_keeps_one_row_per_motor_with_its_latest_estimate_and_health()
     assert "held" in legend
     assert quality({"field": {"R": 1.0, "quality": {"R": "ok"}}}) == "ok"
     assert format_line("dcobserver/shovel2/health", {"flags": []}).split()[-2:] == ["health:", "ok"]
+
+
+def test_a_bad_certificate_path_is_one_line_naming_key_and_file(tmp_path, capsys):
+    config = tmp_path / "router.toml"
+    config.write_text('[zenoh]\nlisten = ["tls/127.0.0.1:7447"]\n[zenoh.tls]\nroot_ca = "ca.pem"\n')
+    for argv in (["router", "--config", str(config)], ["subscribe", "--config", str(config)]):
+        assert cli_main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1, err
+        assert str(config) in err and "zenoh.tls.root_ca" in err and str(tmp_path / "ca.pem") in err

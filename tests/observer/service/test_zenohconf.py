@@ -298,3 +298,43 @@ def test_tls_settings_reach_zenoh(pki):
 def test_inconsistent_security_is_refused(settings, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         ZenohLinkConfig(**settings)
+
+
+def test_a_drive_not_granted_sees_no_subscriber_in_its_health(tmp_path, pki, children):
+    """A wrong grant is silent on the wire; the daemon's own health shows it."""
+    from observer.config import ZenohConfig
+    from observer.service.zenohpub import ZenohPublisher
+
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    access = {
+        "enabled": True,
+        "subscribers": ["control-room"],
+        "publishers": {"drive1": ["drive1"]},
+    }
+    router_toml = zenoh_file(
+        tmp_path / "router.toml", listen=[endpoint],
+        tls=tls_of(pki, pki.certificate("router")), access=access,
+    )  # fmt: skip
+    children(["router", "--config", str(router_toml)]).wait_line("listening on", timeout=60)
+    Network(tmp_path, children, endpoint).party(
+        "control-room", sub="dcobserver/**", tls=tls_of(pki, pki.certificate("control-room"))
+    )
+
+    def publisher(drive):
+        cert = pki.certificate(drive)
+        tls = TlsConfig(str(pki.root_ca), str(cert.certificate), str(cert.private_key))
+        config = ZenohConfig(mode="client", listen=[], connect=[endpoint], tls=tls)
+        return ZenohPublisher(config, drive)
+
+    granted, ungranted = publisher("drive1"), publisher("drive9")
+    try:
+        granted.start()
+        ungranted.start()
+        assert granted.wait_for_subscriber(60)
+        assert not ungranted.wait_for_subscriber(2.0)
+        assert granted.health()["subscriber_matched"] is True
+        health = ungranted.health()
+        assert health["state"] == "open" and health["subscriber_matched"] is False
+    finally:
+        granted.close()
+        ungranted.close()
