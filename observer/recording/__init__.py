@@ -38,6 +38,7 @@ from observer.recording.csv_format import read_csv, write_csv
 from observer.recording.mcap_reader import McapRecordStream, read_mcap
 from observer.recording.mcap_writer import SAMPLE_ENCODINGS, write_mcap
 from observer.recording.sample_block import (
+    MEANINGS,
     METADATA_NAME,
     SAMPLE_BLOCK_SCHEMA,
     SAMPLES_SCHEMA_NAME,
@@ -59,6 +60,7 @@ __all__ = [
     "PROTO_ENCODING",
     "SAMPLE_ENCODINGS",
     "AdcScale",
+    "MEANINGS",
     "METADATA_NAME",
     "SAMPLES_SCHEMA_NAME",
     "SAMPLES_TOPIC",

@@ -17,7 +17,7 @@ import numpy.typing as npt
 
 from observer.recording.base import CHANNELS, UNITS, FloatArray, IntArray
 
-_MEANINGS: Final[dict[str, str]] = {
+MEANINGS: Final[dict[str, str]] = {
     "t": "time",
     "va": "armature voltage",
     "ia": "armature current",
@@ -25,6 +25,7 @@ _MEANINGS: Final[dict[str, str]] = {
     "if": "field current",
     "omega": "shaft angular speed",
 }
+"""What the time column and each channel measure (units: :data:`UNITS`)."""
 
 SAMPLES_TOPIC: Final = "/samples"
 SAMPLES_SCHEMA_NAME: Final = "dcobserver.SampleBlock"
@@ -47,7 +48,7 @@ SAMPLE_BLOCK_SCHEMA: Final[dict[str, Any]] = {
         },
         **{
             name: {
-                "description": f"{_MEANINGS[name].capitalize()} ({UNITS[name]}).",
+                "description": f"{MEANINGS[name].capitalize()} ({UNITS[name]}).",
                 "type": "array",
                 "items": {"type": "number"},
                 "minItems": 1,
@@ -73,6 +74,21 @@ class _SampleBlockError(ValueError):
         self.column = column
 
 
+def _checked_block(t_ns: npt.ArrayLike, signals: Mapping[str, npt.ArrayLike]) -> npt.NDArray[Any]:
+    """``t_ns`` as an array, after the checks every sample-block encoder makes."""
+    times = np.asarray(t_ns)
+    if times.ndim != 1 or times.size == 0:
+        raise ValueError(f"t_ns must be a non-empty 1-D array, got shape {times.shape}")
+    if times.dtype.kind not in "iu":
+        raise ValueError(f"t_ns must hold integer nanoseconds, got dtype {times.dtype}")
+    unknown = [name for name in signals if name not in CHANNELS]
+    if unknown:
+        raise ValueError(f"unknown channel {unknown[0]!r}; allowed: {', '.join(CHANNELS)}")
+    if not signals:
+        raise ValueError(f"a sample block needs at least one of {', '.join(CHANNELS)}")
+    return times
+
+
 def sample_block_message(t_ns: npt.ArrayLike, signals: Mapping[str, npt.ArrayLike]) -> bytes:
     """Encode one block of samples as the JSON message of :data:`SAMPLES_TOPIC`.
 
@@ -95,16 +111,7 @@ def sample_block_message(t_ns: npt.ArrayLike, signals: Mapping[str, npt.ArrayLik
     ValueError
         If the inputs break any of the rules above.
     """
-    times = np.asarray(t_ns)
-    if times.ndim != 1 or times.size == 0:
-        raise ValueError(f"t_ns must be a non-empty 1-D array, got shape {times.shape}")
-    if times.dtype.kind not in "iu":
-        raise ValueError(f"t_ns must hold integer nanoseconds, got dtype {times.dtype}")
-    unknown = [name for name in signals if name not in CHANNELS]
-    if unknown:
-        raise ValueError(f"unknown channel {unknown[0]!r}; allowed: {', '.join(CHANNELS)}")
-    if not signals:
-        raise ValueError(f"a sample block needs at least one of {', '.join(CHANNELS)}")
+    times = _checked_block(t_ns, signals)
     block: dict[str, list[Any]] = {"t_ns": times.tolist()}
     for name in CHANNELS:
         if name not in signals:

@@ -42,7 +42,9 @@ if TYPE_CHECKING:
 from observer.recording.adc import AdcScale, scale_problem
 from observer.recording.base import CHANNELS, UNITS, FloatArray, IntArray
 from observer.recording.sample_block import (
+    MEANINGS,
     SAMPLES_SCHEMA_NAME,
+    _checked_block,
     _SampleBlockError,
     parse_sample_block,
 )
@@ -52,13 +54,6 @@ PROTO_ENCODING: Final = "protobuf"
 
 _PROTO_FILE: Final = "dcobserver/sample_block.proto"
 _FIRST_CHANNEL_FIELD: Final = 10
-_MEANINGS: Final = {
-    "va": "armature voltage",
-    "ia": "armature current",
-    "vf": "field voltage",
-    "if": "field current",
-    "omega": "shaft angular speed",
-}
 
 
 def _file_descriptor() -> descriptor_pb2.FileDescriptorProto:
@@ -69,7 +64,8 @@ def _file_descriptor() -> descriptor_pb2.FileDescriptorProto:
     package, message = SAMPLES_SCHEMA_NAME.split(".")
     fd = descriptor_pb2.FileDescriptorProto(name=_PROTO_FILE, package=package, syntax="proto3")
     channel = fd.message_type.add(name="Channel")
-    for name, number, kind, repeated in (
+    _add_fields(
+        channel,
         ("values", 1, field.TYPE_DOUBLE, True),
         ("counts", 2, field.TYPE_SINT32, True),
         ("lsb", 3, field.TYPE_DOUBLE, False),
@@ -78,18 +74,15 @@ def _file_descriptor() -> descriptor_pb2.FileDescriptorProto:
         ("mean", 6, field.TYPE_DOUBLE, False),
         ("min", 7, field.TYPE_DOUBLE, False),
         ("max", 8, field.TYPE_DOUBLE, False),
-    ):
-        label = field.LABEL_REPEATED if repeated else field.LABEL_OPTIONAL
-        channel.field.add(name=name, number=number, type=kind, label=label)
+    )
     block = fd.message_type.add(name=message)
-    for name, number, kind, repeated in (
+    _add_fields(
+        block,
         ("t0_ns", 1, field.TYPE_INT64, False),
         ("period_ns", 2, field.TYPE_INT64, False),
         ("t_residual_ns", 3, field.TYPE_SINT64, True),
         ("n_samples", 4, field.TYPE_UINT32, False),
-    ):
-        label = field.LABEL_REPEATED if repeated else field.LABEL_OPTIONAL
-        block.field.add(name=name, number=number, type=kind, label=label)
+    )
     for index, name in enumerate(CHANNELS):
         block.field.add(
             name=name,
@@ -102,8 +95,22 @@ def _file_descriptor() -> descriptor_pb2.FileDescriptorProto:
     info = fd.source_code_info
     for index, name in enumerate(CHANNELS):
         location = info.location.add(path=[4, 1, 2, 4 + index])
-        location.leading_comments = f" {_MEANINGS[name].capitalize()} ({UNITS[name]}).\n"
+        location.leading_comments = f" {MEANINGS[name].capitalize()} ({UNITS[name]}).\n"
     return fd
+
+
+def _add_fields(message: Any, *fields: tuple[str, int, int, bool]) -> None:
+    """Scalar fields ``(name, number, type, repeated)`` of a ``DescriptorProto``."""
+    from google.protobuf import descriptor_pb2
+
+    label = descriptor_pb2.FieldDescriptorProto
+    for name, number, kind, repeated in fields:
+        message.field.add(
+            name=name,
+            number=number,
+            type=kind,
+            label=label.LABEL_REPEATED if repeated else label.LABEL_OPTIONAL,
+        )
 
 
 @cache
@@ -151,16 +158,7 @@ def sample_block_proto(
     ValueError
         On an empty block, unknown channels or arrays of unequal length.
     """
-    times = np.asarray(t_ns)
-    if times.ndim != 1 or times.size == 0:
-        raise ValueError(f"t_ns must be a non-empty 1-D array, got shape {times.shape}")
-    if times.dtype.kind not in "iu":
-        raise ValueError(f"t_ns must hold integer nanoseconds, got dtype {times.dtype}")
-    unknown = [name for name in signals if name not in CHANNELS]
-    if unknown:
-        raise ValueError(f"unknown channel {unknown[0]!r}; allowed: {', '.join(CHANNELS)}")
-    if not signals:
-        raise ValueError(f"a sample block needs at least one of {', '.join(CHANNELS)}")
+    times = _checked_block(t_ns, signals)
     times = times.astype(np.int64)
     n = times.size
     message = _message_class()()

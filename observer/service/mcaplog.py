@@ -61,6 +61,8 @@ from drivers.base import AdcScale
 from observer.config import LogConfig
 from observer.recording import (
     ADC_KEY,
+    CHANNELS,
+    MEANINGS,
     METADATA_NAME,
     PROTO_ENCODING,
     SAMPLES_SCHEMA_NAME,
@@ -83,13 +85,6 @@ TIME_BASE: Final = (
     "samples, published the estimate or took the health; data time (source clock) in the "
     "payload: /samples t0_ns + i*period_ns (+ t_residual_ns), /estimate t_ns and window"
 )
-_MEANINGS: Final = {
-    "va": "armature voltage",
-    "ia": "armature current",
-    "vf": "field voltage",
-    "if": "field current",
-    "omega": "shaft angular speed",
-}
 _RETENTION_EVERY_S: Final = 60.0
 
 ESTIMATE_TOPIC = "/estimate"
@@ -190,8 +185,8 @@ def to_json(obj: Any) -> bytes:
 def _channels_metadata(scales: Mapping[str, AdcScale]) -> dict[str, str]:
     """Per channel: unit, meaning and ADC scale (if known), each value a JSON string."""
     out = {}
-    for name, meaning in _MEANINGS.items():
-        entry: dict[str, Any] = {"unit": UNITS[name], "description": meaning}
+    for name in CHANNELS:
+        entry: dict[str, Any] = {"unit": UNITS[name], "description": MEANINGS[name]}
         if name in scales:
             entry[ADC_KEY] = RecordingScale(*scales[name]).as_metadata()
         out[name] = json.dumps(entry)
