@@ -117,7 +117,9 @@ def node_modules():
     node, npm = shutil.which("node"), shutil.which("npm")
     if node is None or npm is None:
         pytest.skip("node/npm not installed: cannot run the TypeScript MCAP reader Foxglove uses")
-    if not (JS / "node_modules" / "@mcap" / "core").is_dir():
+    # The entry point itself, not just the package folder: a half-installed tree
+    # (e.g. node_modules copied without its dist/ folders) needs a fresh npm ci.
+    if not (JS / "node_modules" / "@mcap" / "core" / "dist" / "esm" / "index.js").is_file():
         done = subprocess.run(
             [npm, "ci", "--no-audit", "--no-fund"], cwd=JS, capture_output=True, text=True,
             timeout=300,
