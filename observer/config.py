@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import re
 import tomllib
 import types
 import typing
@@ -91,6 +92,136 @@ def _optional_key_name(x: Any) -> str | None:
     return _key_name(x) if x else None
 
 
+# ------------------------------------------------------------- the measurement chain
+
+#: Analog anti-aliasing filter families of a channel's front end.
+FILTER_KINDS: tuple[str, ...] = ("none", "butter", "bessel", "rc")
+
+MAX_FILTER_ORDER = 4
+
+#: The voltage between samples, see :mod:`observer.estimation.intersample`.
+INTERSAMPLE_MODELS: tuple[str, ...] = ("auto", "hold", "smooth", "switched", "averaged")
+
+_FILTER_RE = re.compile(
+    r"^\s*(?P<kind>[a-z]+?)(?P<order>\d+)?\s*(@\s*(?P<cutoff>[^@]+?))?\s*$", re.IGNORECASE
+)
+_FS_RE = re.compile(r"^fs\s*/\s*(?P<div>[0-9.eE+-]+)$", re.IGNORECASE)
+
+
+def parse_filter(text: str) -> dict[str, Any]:
+    """``none`` or ``KIND ORDER @ CUTOFF`` -> ``filter, order, cutoff_hz, cutoff_per_fs``.
+
+    ``KIND`` is ``butter``, ``bessel`` or ``rc``, ``ORDER`` 1..4, ``CUTOFF`` the -3 dB
+    frequency in Hz (``500``, ``500hz``) or a fraction of the sample rate (``fs/4``),
+    e.g. ``butter2@fs/4``, ``rc1@500``. The one grammar of filters for the config,
+    the estimator and the simulator. Raises ValueError with a one-line reason.
+    """
+    raw = text.strip().lower()
+    if raw in ("none", "0", "off"):
+        return {"filter": "none", "order": 0, "cutoff_hz": None, "cutoff_per_fs": None}
+    m = _FILTER_RE.match(raw)
+    if not m:
+        raise ValueError(f"filter {text!r} is not KIND ORDER@CUTOFF, e.g. butter2@fs/4 or rc1@500")
+    kind = m["kind"]
+    if kind not in FILTER_KINDS or kind == "none":
+        raise ValueError(
+            f"unknown filter {kind!r} in {text!r} (expected none, butter, bessel or rc)"
+        )
+    if m["order"] is None:
+        raise ValueError(f"filter {text!r} has no order (e.g. {kind}2@fs/4)")
+    order = int(m["order"])
+    if not 1 <= order <= MAX_FILTER_ORDER:
+        raise ValueError(f"filter order must be 1..{MAX_FILTER_ORDER}, got {order} in {text!r}")
+    if m["cutoff"] is None:
+        raise ValueError(f"filter {text!r} has no cutoff (e.g. {kind}{order}@500 or @fs/4)")
+    cutoff = m["cutoff"].strip()
+    fs = _FS_RE.match(cutoff)
+    if fs:
+        try:
+            div = float(fs["div"])
+        except ValueError:
+            raise ValueError(f"cutoff {cutoff!r} is not fs/NUMBER") from None
+        if not (math.isfinite(div) and div > 0):
+            raise ValueError(f"cutoff {cutoff!r}: the divisor must be > 0")
+        return {"filter": kind, "order": order, "cutoff_hz": None, "cutoff_per_fs": 1.0 / div}
+    if cutoff.endswith("hz"):
+        cutoff = cutoff[:-2].strip()
+    try:
+        hz = float(cutoff)
+    except ValueError:
+        raise ValueError(f"cutoff {m['cutoff'].strip()!r} is not a number of Hz or fs/N") from None
+    if not (math.isfinite(hz) and hz > 0):
+        raise ValueError(f"cutoff must be > 0 Hz, got {hz:g}")
+    return {"filter": kind, "order": order, "cutoff_hz": hz, "cutoff_per_fs": None}
+
+
+def _filter_text(x: Any) -> str | None:
+    if x is None:
+        return None
+    try:
+        parse_filter(x)
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+def _nonnegative(x: Any) -> str | None:
+    return None if x >= 0 else f"must be >= 0, got {x!r}"
+
+
+@dataclass(frozen=True)
+class ChannelFrontEnd:
+    """One channel's measurement front end, as far as it is known.
+
+    ``filter`` unset means unknown: the estimator then decides from the data.
+    """
+
+    filter: str | None = dataclasses.field(
+        default=None,
+        metadata={
+            "check": _filter_text,
+            "help": "anti-aliasing filter: none, or KIND ORDER@CUTOFF (butter2@fs/4, rc1@500)",
+        },
+    )
+    delay_us: float = dataclasses.field(
+        default=0.0,
+        metadata={
+            "check": _nonnegative,
+            "help": "sampled this long after the nominal instant (us)",
+        },
+    )
+    averaging: bool = dataclasses.field(
+        default=False, metadata={"help": "the sample is the mean over the period ending at it"}
+    )
+
+    @property
+    def known(self) -> bool:
+        return self.filter is not None
+
+
+@dataclass(frozen=True)
+class ChainConfig:
+    """The measurement chain: what happens to each signal between the motor and a number.
+
+    Configure what you know (the data acquisition's anti-aliasing filters, an
+    integrating voltage measurement); the estimator models a known front end
+    exactly and decides the rest from the data.
+    """
+
+    intersample: str = dataclasses.field(
+        default="auto",
+        metadata={
+            "choices": INTERSAMPLE_MODELS,
+            "help": "the voltage between samples: auto, hold, smooth, switched or averaged",
+        },
+    )
+    va: ChannelFrontEnd = ChannelFrontEnd()
+    ia: ChannelFrontEnd = ChannelFrontEnd()
+    vf: ChannelFrontEnd = ChannelFrontEnd()
+    i_f: ChannelFrontEnd = dataclasses.field(default=ChannelFrontEnd(), metadata={"key": "if"})
+    omega: ChannelFrontEnd = ChannelFrontEnd()
+
+
 @dataclass(frozen=True)
 class SourceConfig:
     """Where samples come from: ``kind`` names a registered source, ``options`` its settings."""
@@ -103,20 +234,38 @@ class SourceConfig:
 
 @dataclass(frozen=True)
 class QualityConfig:
-    """Largest one-sigma relative uncertainty for an estimate to be accepted.
+    """Largest one-sigma relative uncertainty for a window to move a parameter.
 
-    The uncertainty is the estimator's ``std`` (sandwich covariance with the
-    errors-in-variables correction, see :mod:`observer.estimation.armature`); on 1 s windows
-    of the P-12 at 2 kHz and 0.2 % noise its median is 0.16 % for Ra, 5.5 % for
-    La and 0.03 % for K, and 0.5 where the window does not identify the armature.
-
-    A parameter whose window does not identify it this well is held at its last
+    The uncertainty is the estimator's ``std``: noise (sandwich covariance),
+    the errors-in-variables correction and the model error its specification
+    test finds (see :mod:`observer.estimation.stages`). A parameter published
+    as ``ok`` should be within its tolerance of the truth: the defaults are
+    the issue's tolerances divided by 2.5 (Rf, Lf, K 1 %, Ra 2 %, La 5 %). A
+    parameter whose window does not identify it this well is held at its last
     accepted value (quality ``"held"``) instead of moving.
     """
 
-    R: float = dataclasses.field(default=0.01, metadata={"check": _positive})
-    L: float = dataclasses.field(default=0.10, metadata={"check": _positive})
-    K: float = dataclasses.field(default=0.01, metadata={"check": _positive})
+    R: float = dataclasses.field(
+        default=0.008, metadata={"check": _positive, "help": "armature resistance"}
+    )
+    L: float = dataclasses.field(
+        default=0.02, metadata={"check": _positive, "help": "armature inductance"}
+    )
+    K: float = dataclasses.field(
+        default=0.004, metadata={"check": _positive, "help": "EMF constant"}
+    )
+    field_R: float = dataclasses.field(
+        default=0.004, metadata={"check": _positive, "help": "field resistance"}
+    )
+    field_L: float = dataclasses.field(
+        default=0.004, metadata={"check": _positive, "help": "field inductance"}
+    )
+
+    def limits(self, circuit: str) -> dict[str, float]:
+        """The limits of one circuit's parameters ``R, L[, K]``."""
+        if circuit == "field":
+            return {"R": self.field_R, "L": self.field_L}
+        return {"R": self.R, "L": self.L, "K": self.K}
 
 
 @dataclass(frozen=True)
@@ -170,6 +319,13 @@ class ObserverConfig:
     stall_s: float = dataclasses.field(default=1.0, metadata={"check": _positive})
     health_s: float = dataclasses.field(default=1.0, metadata={"check": _positive})
     max_lag_windows: int = dataclasses.field(default=20, metadata={"min": 1})
+    chain_windows: int = dataclasses.field(
+        default=10,
+        metadata={
+            "min": 1,
+            "help": "estimated windows that decide the measurement chain (unless [chain] does)",
+        },
+    )
     quality: QualityConfig = QualityConfig()
     agree: AgreeConfig = AgreeConfig()
 
@@ -414,6 +570,7 @@ class Config:
     """The whole configuration file."""
 
     estimate: EstimateConfig = EstimateConfig()
+    chain: ChainConfig = ChainConfig()
     source: SourceConfig = SourceConfig()
     observer: ObserverConfig = ObserverConfig()
     zenoh: ZenohConfig = ZenohConfig()
@@ -453,7 +610,10 @@ def build(
 ) -> T:
     """Instantiate dataclass ``cls`` from a TOML table, strictly."""
     hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    # A field's TOML key is its name, or its "key" metadata where the name
+    # cannot be a Python identifier (e.g. the channel "if").
+    by_key = {f.metadata.get("key", f.name): f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    fields = by_key
     unknown = sorted(set(table) - set(fields))
     if unknown:
         where = f"[{prefix}]" if prefix else "the top level"
@@ -465,11 +625,11 @@ def build(
     for name, raw in table.items():
         key = _join(prefix, name)
         f = fields[name]
-        value = _convert(hints[name], raw, key=key, source=source, base_dir=base_dir)
+        value = _convert(hints[f.name], raw, key=key, source=source, base_dir=base_dir)
         if f.metadata.get("path") and isinstance(value, str):
             value = str((base_dir / value).resolve()) if value else value
         _check(f, value, key=key, source=source)
-        values[name] = value
+        values[f.name] = value
     try:
         return cls(**values)
     except (TypeError, ValueError) as exc:

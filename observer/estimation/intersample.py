@@ -1,0 +1,434 @@
+"""What the winding voltage did between samples: the intersample model of a window.
+
+Output error simulates the winding current from the measured voltage, so it
+needs the voltage *between* the samples. Three models, one per kind of drive
+and measurement chain (chosen per window by :func:`choose_model`, or set in
+config):
+
+``hold``
+    The voltage is constant over each sample period: a digital drive that
+    reports the voltage it holds for the period (its modulator reference).
+    This is the model of the paper and of dcobserver before converter-fed
+    drives; :mod:`observer.estimation.kernels` discretises it exactly.
+``smooth``
+    The voltage was measured through an anti-aliasing filter, so it is
+    band-limited and a cubic through the samples describes it between them.
+    A relative delay between the voltage and current channels (filters of
+    different group delay, a multiplexed ADC) is a parameter of the fit.
+``averaged``
+    An integrating measurement: each sample is the voltage's mean over the
+    period that ends at it, whatever the converter did inside it. The
+    moments of the period between two current samples are then known
+    exactly (the mean) or nearly (its slope and curvature, from the
+    neighbouring means).
+``switched``
+    The voltage was sampled without (enough) filtering from a switching
+    converter: mains sine segments with a jump at every thyristor firing or
+    current extinction. Between jumps the voltage is smooth and the cubic
+    holds; an interval that contains a jump is not known (the samples do not
+    say when it happened), so the output-error simulation restarts after it
+    (see the segments of :mod:`observer.estimation.intersample_kernels`).
+
+Each model is turned into Legendre moments of the voltage over every interval,
+the input :func:`~observer.estimation.intersample_kernels.moment_swarm_costs`
+takes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from observer.estimation import intersample_kernels as ik
+
+MODELS = ("hold", "smooth", "switched", "averaged")
+
+#: A jump must exceed this many robust standard deviations of the smooth parts'
+#: extrapolation error on both sides of its interval.
+JUMP_SIGMAS = 8.0
+
+#: Segments shorter than this many samples are dropped (too short to carry a
+#: current's evolution beyond its own initial value).
+MIN_SEGMENT = 3
+
+#: Below this share of intervals with a clean jump, a channel is not switched.
+MIN_SWITCHED_SHARE = 0.005
+
+#: A filtered jump settles over at most this many intervals after its flagged ones.
+MAX_SETTLING = 4
+
+#: A sample has settled when the quadratic from the three after it predicts it
+#: within this many robust standard deviations.
+SETTLED_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class Segments:
+    """Sample ranges ``[starts[i], ends[i]]`` (inclusive) over which the voltage is known.
+
+    Attributes
+    ----------
+    starts, ends : (n_segments,) int64 arrays
+    n_samples : int
+        Samples of the window (segments cover a subset).
+    """
+
+    starts: np.ndarray
+    ends: np.ndarray
+    n_samples: int
+
+    @classmethod
+    def whole(cls, n: int) -> Segments:
+        return cls(np.array([0], dtype=np.int64), np.array([n - 1], dtype=np.int64), n)
+
+    @property
+    def count(self) -> int:
+        return int(self.starts.shape[0])
+
+    @property
+    def covered(self) -> int:
+        """Samples inside segments."""
+        return int(np.sum(self.ends - self.starts + 1))
+
+    def mask(self) -> np.ndarray:
+        """Boolean per sample: inside a segment."""
+        out = np.zeros(self.n_samples, dtype=bool)
+        for s, e in zip(self.starts, self.ends, strict=True):
+            out[s : e + 1] = True
+        return out
+
+
+@dataclass(frozen=True)
+class Switching:
+    """Where a sampled voltage jumps between samples.
+
+    Attributes
+    ----------
+    jumps : (n - 1,) bool array
+        Per interval: a jump falls inside it.
+    clean_share : float
+        Share of intervals holding a *clean* jump, one that flags its interval
+        alone (none within two intervals), as an unfiltered converter voltage
+        does (a filtered voltage settles over several samples and flags a run
+        of intervals, or rings); 0 when
+        most flagged intervals are in runs.
+    noise_v : float
+        Robust standard deviation of the smooth parts' one-sided quadratic
+        extrapolation error (V): noise plus curvature.
+    transitions : (n - 1,) bool array
+        ``jumps`` widened forward over the intervals whose later sample is
+        still settling (a filtered jump), up to :data:`MAX_SETTLING` intervals.
+    """
+
+    jumps: np.ndarray
+    clean_share: float
+    noise_v: float
+    transitions: np.ndarray | None = None
+
+    @property
+    def switched(self) -> bool:
+        return self.clean_share >= MIN_SWITCHED_SHARE
+
+    @property
+    def transition_share(self) -> float:
+        """Share of intervals inside a transition (a jump and the samples still settling)."""
+        t = self.transitions if self.transitions is not None else self.jumps
+        return float(np.count_nonzero(t)) / max(t.shape[0], 1)
+
+
+def _robust_std(x: np.ndarray) -> float:
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return 0.0
+    return 1.4826 * float(np.median(np.abs(x - np.median(x))))
+
+
+def _smooth_scale(miss_left: np.ndarray, miss_right: np.ndarray) -> float:
+    """Robust standard deviation of one-sided extrapolation misses on smooth stretches.
+
+    Jumps every few samples (a 6-pulse bridge at 2 kHz: one every ~7) spoil
+    most three-sample stencils on one side, but a sample rarely has jumps on
+    both: the smaller of its two misses is clean. The median of the smaller of
+    two independent half-normal magnitudes is 0.375 sigma.
+    """
+    both = np.fmin(np.abs(miss_left), np.abs(miss_right))
+    both = both[np.isfinite(both)]
+    if both.size == 0:
+        return 0.0
+    return float(np.median(both)) / 0.375
+
+
+def find_switching(v: np.ndarray) -> Switching:
+    """Locate the intervals of ``v`` that contain a jump (see :class:`Switching`).
+
+    A quadratic through three samples on one side of an interval predicts the
+    sample on the other side; a jump makes both one-sided predictions across
+    its interval miss by far more than the smooth parts ever do.
+    """
+    n = v.shape[0]
+    jumps = np.zeros(max(n - 1, 0), dtype=bool)
+    if n < 8:
+        return Switching(jumps, 0.0, 0.0)
+    # left[k] predicts v[k] from v[k-3], v[k-2], v[k-1]; right[k] from v[k+1..k+3].
+    left = np.full(n, np.nan)
+    left[3:] = 3.0 * v[2:-1] - 3.0 * v[1:-2] + v[:-3]
+    right = np.full(n, np.nan)
+    right[:-3] = 3.0 * v[1:-2] - 3.0 * v[2:-1] + v[3:]
+    miss_left = v - left
+    miss_right = v - right
+    scale = _smooth_scale(miss_left, miss_right)
+    if not scale > 0:
+        scale = _robust_std(np.diff(v)) or 1e-12
+    threshold = JUMP_SIGMAS * scale
+    across_left = np.abs(miss_left[1:]) > threshold  # interval k: v[k+1] missed from the left
+    across_right = np.abs(miss_right[:-1]) > threshold  # interval k: v[k] missed from the right
+    jumps = across_left & across_right
+    # Intervals at the window's edges cannot be judged from both sides.
+    jumps[:3] = False
+    jumps[-3:] = False
+    # A clean jump leaves both its samples on their own smooth curves: the one
+    # before it is predicted from the left, the one after it from the right. A
+    # filtered jump settles over several samples (or rings), so its
+    # neighbours are still in transition.
+    on_left = np.zeros_like(jumps)
+    on_right = np.zeros_like(jumps)
+    on_left[:] = np.abs(np.nan_to_num(miss_left[:-1], nan=np.inf)) <= SETTLED_SIGMAS * scale
+    on_right[:] = np.abs(np.nan_to_num(miss_right[1:], nan=np.inf)) <= SETTLED_SIGMAS * scale
+    clean = jumps & on_left & on_right
+    flagged = int(np.count_nonzero(jumps))
+    share = float(np.count_nonzero(clean)) / max(n - 1, 1)
+    if flagged and np.count_nonzero(clean) < 0.25 * flagged:
+        share = 0.0
+    # A filtered jump is still settling after its flagged intervals: widen each
+    # run forward until the next sample lies on the smooth curve after it.
+    transitions = jumps.copy()
+    settled = np.abs(miss_right) <= SETTLED_SIGMAS * scale
+    ends = np.flatnonzero(jumps & ~np.concatenate([jumps[1:], [False]]))
+    for k in ends:
+        j = k + 1
+        while j < n - 1 and j - k <= MAX_SETTLING and not settled[j]:
+            transitions[j] = True
+            j += 1
+    return Switching(jumps, share, scale, transitions)
+
+
+def segments_between(jumps: np.ndarray, min_length: int = MIN_SEGMENT) -> Segments:
+    """Maximal runs of samples whose intervals hold no jump; short runs dropped."""
+    n = jumps.shape[0] + 1
+    starts: list[int] = []
+    ends: list[int] = []
+    k = 0
+    while k < n:
+        s = k
+        while k < n - 1 and not jumps[k]:
+            k += 1
+        # samples s..k are joined by jump-free intervals
+        if k - s + 1 >= min_length:
+            starts.append(s)
+            ends.append(k)
+        k += 1
+    if not starts:
+        return Segments(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), n)
+    return Segments(np.array(starts, dtype=np.int64), np.array(ends, dtype=np.int64), n)
+
+
+def rail_samples(x: np.ndarray) -> np.ndarray:
+    """Samples at an ADC's rail: the channel clipped, its value says nothing beyond the rail.
+
+    A clipped channel piles up at its extreme value and stays there: the
+    largest (or smallest) value of the window is held for consecutive samples
+    and occurs more than twice as often as all values within three
+    quantisation steps below it together (a rounded sine top spreads over
+    those steps; a periodic waveform sampled in step with its period repeats
+    its peak, but not in consecutive samples). Only extremes
+    at the channel's largest magnitude count, so a current resting at zero in
+    discontinuous conduction is never taken for a rail.
+    """
+    out = np.zeros(x.shape[0], dtype=bool)
+    if x.shape[0] < 3:
+        return out
+    peak = float(np.max(np.abs(x)))
+    if not peak > 0:
+        return out
+    for sign in (1.0, -1.0):
+        y = sign * x
+        extreme = float(np.max(y))
+        if extreme < 0.5 * peak:
+            continue
+        at = y == extreme
+        count = int(np.count_nonzero(at))
+        if count < 2:
+            continue
+        below = np.unique(y[(y < extreme) & (y > extreme - 0.01 * peak)])
+        step = float(np.min(np.diff(np.append(below, extreme)))) if below.size else 0.0
+        near = int(np.count_nonzero((y < extreme) & (y >= extreme - 3.0 * step))) if step else 0
+        held = bool(np.any(at[1:] & at[:-1]))
+        if count > 2 * near and held:
+            out |= at
+    return out
+
+
+def restrict(segments: Segments, valid: np.ndarray, min_length: int = MIN_SEGMENT) -> Segments:
+    """``segments`` cut where ``valid`` is False (those samples leave the segments)."""
+    if bool(np.all(valid)):
+        return segments
+    starts: list[int] = []
+    ends: list[int] = []
+    for s, e in zip(segments.starts, segments.ends, strict=True):
+        k = int(s)
+        while k <= e:
+            while k <= e and not valid[k]:
+                k += 1
+            first = k
+            while k <= e and valid[k]:
+                k += 1
+            if k - first >= min_length:
+                starts.append(first)
+                ends.append(k - 1)
+    n = segments.n_samples
+    if not starts:
+        return Segments(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), n)
+    return Segments(np.array(starts, dtype=np.int64), np.array(ends, dtype=np.int64), n)
+
+
+def hold_moments(v: np.ndarray) -> np.ndarray:
+    """Moments of a voltage held at each sample's value over the following period."""
+    mu = np.zeros((v.shape[0] - 1, 3))
+    mu[:, 0] = v[:-1]
+    return mu
+
+
+def averaged_moments(v: np.ndarray) -> np.ndarray:
+    """Moments of interval ``k`` from a voltage averaged over each period ending at a sample.
+
+    ``v[k+1]`` is the exact mean over interval ``k``; the quadratic whose means
+    over intervals ``k-1, k, k+1`` are ``v[k], v[k+1], v[k+2]`` gives the
+    first and second Legendre moments: ``(v[k+2] - v[k])/12`` and
+    ``(v[k+2] - 2 v[k+1] + v[k])/60`` (linear at the window's end).
+    """
+    n = v.shape[0]
+    mu = np.zeros((n - 1, 3))
+    mu[:, 0] = v[1:]
+    if n >= 3:
+        mu[:-1, 1] = (v[2:] - v[:-2]) / 12.0
+        mu[:-1, 2] = (v[2:] - 2.0 * v[1:-1] + v[:-2]) / 60.0
+        mu[-1, 1] = (v[-1] - v[-2]) / 6.0
+    return mu
+
+
+def cubic_moments(v: np.ndarray, segments: Segments, shift: float = 0.0) -> np.ndarray:
+    """Moments of the segment-wise cubic through ``v``, read ``shift`` periods late."""
+    mu = np.zeros((v.shape[0] - 1, 3))
+    ik.interpolated_moments(
+        np.ascontiguousarray(v, dtype=np.float64), segments.starts, segments.ends,
+        float(shift), ik.GAUSS_U, ik.GAUSS_W, mu,
+    )  # fmt: skip
+    return mu
+
+
+@dataclass(frozen=True)
+class InputModel:
+    """A window's winding input, as the moment kernels take it.
+
+    Attributes
+    ----------
+    model : {"hold", "smooth", "switched"}
+    mu : (n - 1, 3) array
+        Legendre moments of the winding voltage per interval (V).
+    segments : Segments
+    shift : float
+        Relative delay of the voltage behind the current (sample periods).
+    switching : Switching or None
+        What :func:`find_switching` found in the voltage.
+    """
+
+    model: str
+    mu: np.ndarray
+    segments: Segments
+    shift: float = 0.0
+    switching: Switching | None = None
+
+
+def build_input(
+    v: np.ndarray,
+    model: str,
+    *,
+    shift: float = 0.0,
+    switching: Switching | None = None,
+    valid: np.ndarray | None = None,
+) -> InputModel:
+    """The :class:`InputModel` of voltage samples ``v`` under ``model``.
+
+    ``valid`` (per sample) marks the samples that can be used: a clipped
+    voltage or current sample leaves the segments, and the simulation
+    restarts after it.
+    """
+    n = v.shape[0]
+    if model not in MODELS:
+        raise ValueError(f"unknown intersample model {model!r}; expected one of {MODELS}")
+    sw = switching
+    if model == "switched":
+        sw = switching if switching is not None else find_switching(v)
+        segments = segments_between(sw.transitions if sw.transitions is not None else sw.jumps)
+    else:
+        segments = Segments.whole(n)
+    if valid is not None:
+        segments = restrict(segments, valid)
+    if model == "hold":
+        return InputModel("hold", hold_moments(v), segments, 0.0, sw)
+    if model == "averaged":
+        return InputModel("averaged", averaged_moments(v), segments, 0.0, sw)
+    return InputModel(model, cubic_moments(v, segments, shift), segments, shift, sw)
+
+
+def choose_model(
+    v: np.ndarray, requested: str = "auto", *, winding: str = "armature"
+) -> tuple[str, Switching]:
+    """The intersample model for voltage samples ``v``: ``requested``, or decided from the data.
+
+    ``auto``, armature: ``switched`` when the voltage shows clean jumps (an
+    unfiltered converter voltage), else ``smooth``. ``auto``, field:
+    ``switched`` whenever the voltage shows transitions, filtered or not. The
+    field's resistance rests on the *mean* voltage, and the mean of samples of
+    a bridge voltage is off by the part of each jump that falls between them
+    (up to several percent when the firing instants keep their place between
+    samples, as they do on a steady field); leaving out the transitions leaves
+    the sine segments, which samples describe well, and the field's long time
+    constant keeps the segments informative. The armature's short time
+    constant makes its short segments weak, so it is segmented only where it
+    must be. ``hold`` is never chosen here: only the current can tell a held
+    voltage from a sampled one (see :func:`observer.estimation.stages.hold_or_smooth`).
+    """
+    sw = find_switching(v)
+    if requested != "auto":
+        if requested not in MODELS:
+            raise ValueError(f"unknown intersample model {requested!r}; expected auto or {MODELS}")
+        return requested, sw
+    if winding == "field":
+        return ("switched" if sw.transition_share >= MIN_SWITCHED_SHARE else "smooth"), sw
+    return ("switched" if sw.switched else "smooth"), sw
+
+
+def emf_moments(i_f: np.ndarray, omega: np.ndarray, segments: Segments) -> np.ndarray:
+    """Moments of ``if*omega`` (A*rad/s): a product of two smooth signals, cubic within segments."""
+    e = np.ascontiguousarray(i_f * omega, dtype=np.float64)
+    return cubic_moments(e, segments, 0.0)
+
+
+__all__ = [
+    "MODELS",
+    "InputModel",
+    "Segments",
+    "Switching",
+    "build_input",
+    "choose_model",
+    "averaged_moments",
+    "cubic_moments",
+    "emf_moments",
+    "find_switching",
+    "hold_moments",
+    "rail_samples",
+    "restrict",
+    "segments_between",
+]

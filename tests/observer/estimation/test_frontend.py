@@ -1,0 +1,101 @@
+"""Front ends: the filter grammar, responses, and the relative front end applied to samples."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from observer.config import ChainConfig, ChannelFrontEnd
+from observer.estimation.frontend import (
+    FrontEnd,
+    apply_relative,
+    check_against_rate,
+    edge_samples,
+    filter_sections,
+    parse_filter,
+    parse_front_end,
+    sections_response,
+    winding_front_ends,
+)
+
+
+@pytest.mark.parametrize("kind", ["butter", "bessel", "rc"])
+@pytest.mark.parametrize("order", [1, 2, 3, 4])
+def test_every_filter_is_3db_down_at_its_cutoff(kind, order):
+    h = sections_response(filter_sections(kind, order, 500.0), np.array([0.0, 500.0]))
+    assert abs(h[0]) == pytest.approx(1.0)
+    assert abs(h[1]) == pytest.approx(1 / np.sqrt(2), rel=2e-3)
+
+
+@pytest.mark.parametrize(
+    ("text", "fields"),
+    [
+        ("none", ("none", 0, None, None)),
+        ("butter2@fs/4", ("butter", 2, None, 0.25)),
+        ("RC1 @ 500Hz", ("rc", 1, 500.0, None)),
+        ("bessel4@1250", ("bessel", 4, 1250.0, None)),
+    ],
+)
+def test_the_filter_grammar(text, fields):
+    got = parse_filter(text)
+    assert (got["filter"], got["order"], got["cutoff_hz"], got["cutoff_per_fs"]) == fields
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("cheby2@500", "unknown filter 'cheby'"),
+        ("butter@500", "has no order"),
+        ("butter5@500", "order must be 1..4"),
+        ("butter2", "has no cutoff"),
+        ("butter2@-3", "cutoff must be > 0"),
+        ("butter2@fs/0", "divisor must be > 0"),
+        ("butter2@fast", "is not a number"),
+    ],
+)
+def test_bad_filters_get_a_one_line_reason(text, message):
+    with pytest.raises(ValueError, match=message):
+        parse_filter(text)
+
+
+def test_a_front_end_must_fit_the_sample_rate():
+    check_against_rate(parse_front_end("butter2@fs/4"), 2000.0, "chain.va")
+    with pytest.raises(ValueError, match="chain.va: cutoff 1500 Hz is at or above the Nyquist"):
+        check_against_rate(parse_front_end("rc1@1500"), 2000.0, "chain.va")
+    with pytest.raises(ValueError, match="chain.ia: delay must be >= 0"):
+        check_against_rate(FrontEnd(delay_s=1e-3), 2000.0, "chain.ia")
+
+
+def test_the_relative_front_end_turns_one_channels_samples_into_the_others():
+    fs, n = 2000.0, 4000
+    t = np.arange(n) / fs
+    rng = np.random.default_rng(2)
+    freqs = rng.uniform(5, 450, 12)
+    phases = rng.uniform(0, 2 * np.pi, 12)
+    voltage = parse_front_end("rc1@fs/4", delay_s=40e-6)
+    current = parse_front_end("butter2@fs/4")
+
+    def seen(fe):
+        h = fe.response(freqs, fs)
+        return sum(
+            abs(hk) * np.cos(2 * np.pi * f * t + p + np.angle(hk))
+            for f, p, hk in zip(freqs, phases, h, strict=True)
+        )
+
+    out = apply_relative(seen(voltage), 1 / fs, voltage, current)
+    edge = edge_samples(voltage, current, 1 / fs)
+    inner = slice(edge, n - edge)
+    target = seen(current)
+    assert np.max(np.abs(out[inner] - target[inner])) < 0.02 * np.max(np.abs(target))
+    # Equal front ends change nothing.
+    same = apply_relative(target, 1 / fs, current, current)
+    assert np.allclose(same, target)
+
+
+def test_a_winding_has_front_ends_only_when_both_of_its_channels_are_known():
+    chain = ChainConfig(va=ChannelFrontEnd("rc1@500"), ia=ChannelFrontEnd("butter2@500", 20.0))
+    fe_v, fe_i = winding_front_ends(chain, "armature")
+    assert (fe_v.filter, fe_v.order, fe_v.cutoff_hz) == ("rc", 1, 500.0)
+    assert fe_i.delay_s == pytest.approx(20e-6)
+    assert winding_front_ends(chain, "field") is None
+    assert winding_front_ends(None, "armature") is None

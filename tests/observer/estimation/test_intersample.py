@@ -1,0 +1,151 @@
+"""The voltage between samples: switching detection, rails, segments and moments."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from observer.estimation.intersample import (
+    Segments,
+    averaged_moments,
+    build_input,
+    choose_model,
+    cubic_moments,
+    find_switching,
+    hold_moments,
+    rail_samples,
+    restrict,
+    segments_between,
+)
+
+FS = 2000.0
+MAINS = 50.0
+
+
+def bridge_voltage(t: np.ndarray, alpha_deg: float = 60.0, amp: float = 300.0) -> np.ndarray:
+    """A 6-pulse bridge's output: line-to-line sine segments with a jump at every firing."""
+    theta = 2 * np.pi * MAINS * t
+    pulse = np.floor((theta + np.pi / 6 - np.radians(alpha_deg)) / (np.pi / 3))
+    return amp * np.cos(theta - pulse * np.pi / 3)
+
+
+def first_order(x_fine: np.ndarray, dt_fine: float, tau: float) -> np.ndarray:
+    a = np.exp(-dt_fine / tau)
+    y = np.empty_like(x_fine)
+    acc = x_fine[0]
+    for k, x in enumerate(x_fine):
+        acc = a * acc + (1 - a) * x
+        y[k] = acc
+    return y
+
+
+@pytest.fixture(scope="module")
+def sampled():
+    rng = np.random.default_rng(0)
+    t = np.arange(4000) / FS + rng.uniform(0, 1 / FS)
+    return t, bridge_voltage(t) + rng.normal(0, 0.3, t.size)
+
+
+def test_an_unfiltered_bridge_voltage_shows_a_clean_jump_at_every_firing(sampled):
+    t, v = sampled
+    sw = find_switching(v)
+    theta = 2 * np.pi * MAINS * t
+    pulse = np.floor((theta + np.pi / 6 - np.radians(60.0)) / (np.pi / 3))
+    truth = np.diff(pulse) != 0
+    inner = slice(4, -4)
+    assert np.array_equal(sw.jumps[inner], truth[inner])
+    assert sw.switched
+    assert sw.clean_share == pytest.approx(truth.mean(), rel=0.05)
+
+
+def field_bridge_voltage(t: np.ndarray, alpha_deg: float = 50.0, amp: float = 540.0) -> np.ndarray:
+    """A single-phase fully controlled bridge: +-sine segments, a jump at every firing."""
+    theta = 2 * np.pi * MAINS * t
+    half = np.floor((theta - np.radians(alpha_deg)) / np.pi)
+    return amp * np.sin(theta) * np.where(half % 2 == 0, 1.0, -1.0)
+
+
+def test_a_filtered_bridge_voltage_has_no_clean_jump():
+    fine = 40
+    t = np.arange(4000 * fine) / (FS * fine)
+    tau = 1 / (2 * np.pi * FS / 4)
+    armature = first_order(bridge_voltage(t), 1 / (FS * fine), tau)[::fine]
+    assert not find_switching(armature).switched
+    assert choose_model(armature, winding="armature")[0] == "smooth"
+    field = first_order(field_bridge_voltage(t), 1 / (FS * fine), tau)[::fine]
+    sw = find_switching(field)
+    assert not sw.switched
+    # The field's transitions are seen (runs of intervals, not clean jumps).
+    assert sw.transition_share >= sw.jumps.mean() > 0.005
+    assert choose_model(field, winding="field")[0] == "switched"
+
+
+def test_a_smooth_voltage_is_not_switched():
+    t = np.arange(4000) / FS
+    v = 100 * np.sin(2 * np.pi * 7 * t) + np.random.default_rng(1).normal(0, 0.1, t.size)
+    sw = find_switching(v)
+    assert not sw.jumps.any()
+    assert choose_model(v)[0] == "smooth"
+
+
+def test_an_explicit_model_is_taken_and_an_unknown_one_refused(sampled):
+    assert choose_model(sampled[1], "hold")[0] == "hold"
+    with pytest.raises(ValueError, match="unknown intersample model 'zoh'"):
+        choose_model(sampled[1], "zoh")
+
+
+def test_a_clipped_channel_is_found_at_its_rails_and_nowhere_else():
+    t = np.arange(2000) / FS
+    x = 10 * np.sin(2 * np.pi * 13 * t)
+    lsb = 20 / 4096
+    q = np.round(np.clip(x, -7.5, 7.5) / lsb) * lsb
+    rail = rail_samples(q)
+    assert np.array_equal(rail, np.abs(x) >= 7.5 - lsb / 2)
+    # A quantised sine whose rounded top repeats a value is not clipped,
+    assert not rail_samples(np.round(x / lsb) * lsb).any()
+    # nor a current resting at zero in discontinuous conduction.
+    dcm = np.where(np.sin(2 * np.pi * 300 * t) > 0.3, np.sin(2 * np.pi * 300 * t), 0.0)
+    assert not rail_samples(np.round(dcm / lsb) * lsb).any()
+
+
+def test_segments_run_between_jumps_and_leave_invalid_samples():
+    jumps = np.zeros(19, dtype=bool)
+    jumps[[4, 5, 12]] = True
+    seg = segments_between(jumps, min_length=3)
+    assert list(zip(seg.starts, seg.ends, strict=True)) == [(0, 4), (6, 12), (13, 19)]
+    valid = np.ones(20, dtype=bool)
+    valid[8] = False
+    cut = restrict(seg, valid, min_length=3)
+    assert list(zip(cut.starts, cut.ends, strict=True)) == [(0, 4), (9, 12), (13, 19)]
+    assert cut.covered == 5 + 4 + 7
+
+
+def test_moments_of_polynomials_are_exact():
+    k = np.arange(12, dtype=float)
+    cubic = 0.5 * k**3 - 2 * k**2 + k + 3
+    mu = cubic_moments(cubic, Segments.whole(k.size))
+    u = np.linspace(0, 1, 20001)
+    for i in (0, 5, 10):
+        p = 0.5 * (i + u) ** 3 - 2 * (i + u) ** 2 + (i + u) + 3
+        expected = [np.trapezoid(p * leg, u) for leg in (1, 2 * u - 1, 6 * u**2 - 6 * u + 1)]
+        assert mu[i] == pytest.approx(expected, abs=1e-6)
+    # Read half a period late, a ramp's interval mean moves by half a step.
+    ramp = cubic_moments(k, Segments.whole(k.size), 0.5)
+    assert ramp[3, 0] == pytest.approx(4.0)
+    assert hold_moments(cubic)[4].tolist() == [cubic[4], 0.0, 0.0]
+
+
+def test_averaged_moments_take_the_interval_mean_from_the_next_sample():
+    # Means over the period ending at each sample of v(t) = t^2 (periods of 1).
+    k = np.arange(10, dtype=float)
+    means = ((k**3) - (k - 1) ** 3) / 3.0
+    mu = averaged_moments(means)
+    for i in range(1, 8):
+        assert mu[i, 0] == pytest.approx(((i + 1) ** 3 - i**3) / 3)
+        assert mu[i, 1] == pytest.approx((2 * i + 1) / 6)
+        assert mu[i, 2] == pytest.approx(1 / 30)
+
+
+def test_build_input_refuses_an_unknown_model(sampled):
+    with pytest.raises(ValueError, match="unknown intersample model"):
+        build_input(sampled[1], "linear")

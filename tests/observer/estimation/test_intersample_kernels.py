@@ -1,0 +1,115 @@
+"""The moment kernels: the ZOH model as a special case, exact for any known voltage, segments."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from observer.estimation import intersample_kernels as ik
+from observer.estimation import kernels
+from observer.estimation.intersample import Segments
+
+
+@pytest.fixture(scope="module")
+def window(p12_recording):
+    w = p12_recording.slice_time(2.0, 3.0)
+    return {c: np.array(w[c]) for c in ("va", "ia", "vf", "if", "omega")} | {"dt": w.dt}
+
+
+def _hold(v):
+    mu = np.zeros((v.size - 1, 3))
+    mu[:, 0] = v[:-1]
+    return mu
+
+
+def test_held_moments_reproduce_the_zoh_swarm_costs(window):
+    dt, n = window["dt"], window["va"].size
+    whole = Segments.whole(n)
+    field_pos = np.log10([[185.0, 50.0], [150.0, 40.0], [200.0, 70.0]])
+    old = kernels.rl_swarm_costs(field_pos, window["vf"], window["if"], dt, True, 0.0)
+    new = ik.moment_swarm_costs(
+        field_pos, _hold(window["vf"]), _hold(window["vf"]), window["if"], whole.starts,
+        whole.ends, dt, True, ik.EMF_NONE, 0.0, 0.0,
+    )  # fmt: skip
+    assert new == pytest.approx(old, rel=1e-9)
+    emf = kernels.emf_input(window["if"], window["omega"])
+    arm_pos = np.log10([[3.5, 0.02], [3.0, 0.03], [4.0, 0.015]])
+    for mode, k, noise in ((ik.EMF_FIT, math.nan, 0.0), (ik.EMF_HELD, 1.12, 0.5)):
+        old = kernels.armature_swarm_costs(
+            arm_pos, window["va"], emf, window["ia"], dt, True, k, noise
+        )
+        new = ik.moment_swarm_costs(
+            arm_pos, _hold(window["va"]), _hold(emf), window["ia"], whole.starts, whole.ends,
+            dt, True, mode, 0.0 if mode == ik.EMF_FIT else k, noise,
+        )  # fmt: skip
+        assert new == pytest.approx(old, rel=1e-8)
+
+
+def test_the_update_is_exact_for_a_voltage_known_between_samples():
+    # v(t) = 100 + 40 sin(2 pi 90 t), a winding of tau = 2.5 samples, integrated finely.
+    r, ell, dt, n, fine = 2.0, 0.0025, 0.5e-3, 400, 200
+    h = dt / fine
+    t = np.arange(n * fine + 1) * h
+    v = 100 + 40 * np.sin(2 * np.pi * 90 * t)
+    i = np.empty_like(t)
+    i[0] = 1.0
+    a = math.exp(-r * h / ell)
+    for k in range(t.size - 1):  # exact for a voltage linear over each fine step
+        v0, v1 = v[k], v[k + 1]
+        slope = (v1 - v0) / h
+        i[k + 1] = a * i[k] + (1 - a) / r * v0 + slope / r * (h - ell / r * (1 - a))
+    u = np.linspace(0, 1, fine + 1)
+    mu = np.empty((n, 3))
+    for k in range(n):
+        seg = v[k * fine : (k + 1) * fine + 1]
+        for j, leg in enumerate((np.ones_like(u), 2 * u - 1, 6 * u**2 - 6 * u + 1)):
+            mu[k, j] = np.trapezoid(seg * leg, u)
+    y = i[::fine]
+    whole = Segments.whole(n + 1)
+    out, initial = np.empty(n + 1), np.empty(1)
+    ik.moment_residual(
+        r, ell, 0.0, mu, mu, y, whole.starts, whole.ends, dt, False, out, initial
+    )  # fmt: skip
+    # x = R*T/L = 0.4: the quadratic weight's error is ~x^3/2000.
+    assert np.max(np.abs(out)) < 1e-5 * np.max(np.abs(y))
+    assert initial[0] == pytest.approx(1.0, abs=1e-4)
+    # The held model misses: the voltage is not constant between samples.
+    out_hold = np.empty(n + 1)
+    ik.moment_residual(
+        r, ell, 0.0, _hold(v[::fine]), mu, y, whole.starts, whole.ends, dt, False, out_hold,
+        initial,
+    )  # fmt: skip
+    assert np.max(np.abs(out_hold)) > 100 * np.max(np.abs(out))
+
+
+def test_segments_are_independent_simulations(window):
+    dt, v, y = window["dt"], window["vf"], window["if"]
+    mu = _hold(v)
+    starts, ends = np.array([0, 600, 1300]), np.array([500, 1200, 1999])
+    pos = np.log10([[185.0, 50.0], [170.0, 60.0]])
+    together = ik.moment_swarm_costs(
+        pos, mu, mu, y, starts, ends, dt, True, ik.EMF_NONE, 0.0, 0.0
+    )  # fmt: skip
+    apart = sum(
+        ik.moment_swarm_costs(
+            pos, mu, mu, y, starts[i : i + 1], ends[i : i + 1], dt, True, ik.EMF_NONE, 0.0, 0.0
+        )
+        for i in range(3)
+    )
+    assert together == pytest.approx(apart, rel=1e-12)
+
+
+def test_coefficients_are_continuous_where_the_series_takes_over():
+    x = ik._SERIES_X
+    below = ik.moment_coefficients(1.0, 1.0 / (x * (1 - 1e-9)), 1.0)
+    above = ik.moment_coefficients(1.0, 1.0 / (x * (1 + 1e-9)), 1.0)
+    assert below == pytest.approx(above, rel=1e-7)
+    # and they match the defining integrals
+    for x in (1e-4, 0.05, 0.5, 3.0):
+        a, c0, c1, c2 = ik.moment_coefficients(1.0, 1.0 / x, 1.0)
+        u = np.linspace(0, 1, 200001)
+        w = np.exp(-x * (1 - u))
+        for c, j, leg in ((c0, 0, 1.0), (c1, 1, 2 * u - 1), (c2, 2, 6 * u**2 - 6 * u + 1)):
+            assert c == pytest.approx(x * (2 * j + 1) * np.trapezoid(w * leg, u), rel=1e-6)
