@@ -37,7 +37,8 @@ def main(args: argparse.Namespace) -> int:
     from observer.estimation import estimate_recording
     from observer.recording import read_recording
 
-    settings = load_config(args.config).estimate if args.config else EstimateConfig()
+    config = load_config(args.config) if args.config else None
+    settings = config.estimate if config is not None else EstimateConfig()
     overrides = {
         "particles": args.particles,
         "iterations": args.iterations,
@@ -51,7 +52,8 @@ def main(args: argparse.Namespace) -> int:
         raise UserError("--particles must be >= 2 and --iterations >= 1")
     rec = read_recording(args.recording)
     circuits = ("field", "armature") if args.circuit == "both" else (args.circuit,)
-    results = estimate_recording(rec, circuits, settings, path=args.recording)
+    chain = config.chain if config is not None else None
+    results = estimate_recording(rec, circuits, settings, path=args.recording, chain=chain)
     report: dict[str, Any] = {name: est.to_dict() for name, est in results.items()}
     truth = rec.metadata.get("motor")
     if args.json:

@@ -15,6 +15,7 @@ import numpy as np
 
 from observer.estimation.armature import estimate_armature
 from observer.estimation.field import estimate_field
+from observer.estimation.frontend import winding_front_ends
 from observer.estimation.ranges import EstimationError, SearchRange
 from observer.estimation.result import CircuitEstimate
 
@@ -34,7 +35,12 @@ def _configured_range(cfg: Any) -> SearchRange | None:
 
 
 def estimate_recording(
-    rec: Any, circuits: tuple[str, ...] = CIRCUITS, settings: Any = None, *, path: str | None = None
+    rec: Any,
+    circuits: tuple[str, ...] = CIRCUITS,
+    settings: Any = None,
+    *,
+    path: str | None = None,
+    chain: Any = None,
 ) -> dict[str, CircuitEstimate]:
     """Estimate the requested circuits of a :class:`~observer.recording.Recording`.
 
@@ -46,6 +52,9 @@ def estimate_recording(
         Swarm settings and optional search ranges; defaults apply when omitted.
     path : str, optional
         File name used in error messages.
+    chain : observer.config.ChainConfig, optional
+        The measurement chain, as far as it is known (intersample model, the
+        channels' front ends); unknown parts are decided from the data.
     """
     from observer.config import EstimateConfig
 
@@ -65,16 +74,20 @@ def estimate_recording(
         # One seed per circuit, so estimating one circuit alone gives the same numbers.
         rng = np.random.default_rng([cfg.seed, CIRCUITS.index(circuit)])
         prefix = f"{path}: " if path else ""
+        chain_kw: dict[str, Any] = {
+            "intersample": chain.intersample if chain is not None else "auto",
+            "front_ends": winding_front_ends(chain, circuit),
+        }
         try:
             if circuit == "field":
                 out[circuit] = estimate_field(
                     rec["vf"], rec["if"], rec.dt, rng=rng,
-                    search_range=_configured_range(cfg.field), **common,  # type: ignore[arg-type]
+                    search_range=_configured_range(cfg.field), **common, **chain_kw,  # type: ignore[arg-type]
                 )  # fmt: skip
             else:
                 out[circuit] = estimate_armature(
                     rec["va"], rec["ia"], rec["if"], rec["omega"], rec.dt, rng=rng,
-                    search_range=_configured_range(cfg.armature), **common,  # type: ignore[arg-type]
+                    search_range=_configured_range(cfg.armature), **common, **chain_kw,  # type: ignore[arg-type]
                 )  # fmt: skip
         except EstimationError as exc:
             raise EstimationError(f"{prefix}{circuit} circuit: {exc}") from None

@@ -1,33 +1,32 @@
 """The field winding's estimator: ``(Rf, Lf)`` from ``vf`` and ``if``.
 
-Swarm over ``log10 (R, L)`` with the initial current projected out
-(:func:`observer.estimation.kernels.rl_swarm_costs`), Levenberg-Marquardt polish
-on ``(ln R, ln L, i0)``, and the uncertainty at the optimum.
+The voltage's intersample model is chosen from the data
+(:func:`observer.estimation.intersample.choose_model`), then the stages of
+:mod:`observer.estimation.stages` run: swarm over ``log10 (R, L)`` with the
+initial currents projected out, Levenberg-Marquardt polish (with the relative
+delay of the voltage channel where the model has one), optional
+errors-in-variables compensation, and the uncertainty at the optimum.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from observer.estimation import kernels
-from observer.estimation.polish import jacobian, levenberg_marquardt, log_limits
+from observer.estimation.frontend import FrontEnd
+from observer.estimation.intersample import choose_model
+from observer.estimation.problem import make_problem
 from observer.estimation.ranges import SearchRange, check_signals, field_search_range, kernel_array
 from observer.estimation.result import CircuitEstimate
-from observer.estimation.swarm import run_swarm
-from observer.estimation.uncertainty import crlb_std
-
-
-def _field_linear(
-    resistance: float, inductance: float, vf: np.ndarray, i_f: np.ndarray, dt: float
-) -> tuple[float, np.ndarray]:
-    """Best initial current and the residual for given ``(R, L)``."""
-    forced = kernels.simulate_rl(resistance, inductance, 0.0, vf, dt)
-    free = kernels.simulate_rl(resistance, inductance, 1.0, np.zeros_like(vf), dt)
-    d = i_f - forced
-    i0 = float(d @ free) / float(free @ free)
-    return i0, d - i0 * free
+from observer.estimation.stages import (
+    EivCorrection,
+    SwarmSettings,
+    eiv_stage,
+    hold_or_smooth,
+    polish_stage,
+    specification_stage,
+    std_stage,
+    swarm_stage,
+)
 
 
 def estimate_field(
@@ -46,13 +45,18 @@ def estimate_field(
     explore_fraction: float = 0.0,
     tol: float = 0.0,
     polish: bool = True,
+    intersample: str = "auto",
+    fit_shift: bool = True,
+    shift: float = 0.0,
+    compensate_input_noise: bool = False,
+    front_ends: tuple[FrontEnd, FrontEnd] | None = None,
 ) -> CircuitEstimate:
     """Estimate ``(Rf, Lf)`` of the field winding from ``vf`` (V) and ``if`` (A).
 
     Parameters
     ----------
     vf, i_f : (n,) arrays
-        Field voltage, held over each sample period, and field current.
+        Field voltage and field current samples.
     dt : float
         Sample period (s).
     search_range : SearchRange, optional
@@ -65,47 +69,58 @@ def estimate_field(
     polish : bool
         Refine the swarm's best by Levenberg-Marquardt (default). Off, the
         estimate is the swarm's alone, as in the paper.
+    intersample : {"auto", "hold", "smooth", "switched"}
+        The voltage between samples (see :mod:`observer.estimation.intersample`);
+        ``auto`` decides from the data.
+    fit_shift : bool
+        Fit the relative delay of the voltage channel behind the current channel.
+    shift : float
+        That delay (sample periods): the start of the fit, or its value when
+        not fitted (a chain calibrated beforehand).
+    compensate_input_noise : bool
+        Remove the errors-in-variables bias of noise on ``vf``.
     """
     vf = kernel_array(vf)
     i_f = kernel_array(i_f)
     n = check_signals(vf=vf, i_f=i_f)
     rng_ = np.random.default_rng(rng)
     bounds = search_range if search_range is not None else field_search_range(vf, i_f, dt)
-
-    def cost(x: np.ndarray) -> np.ndarray:
-        return kernels.rl_swarm_costs(x, vf, i_f, dt, True, 0.0)
-
-    result = run_swarm(
-        cost, bounds, n_particles=n_particles, max_iterations=max_iterations,
-        schedule=schedule, w=w, rng=rng_, x0=x0, init_range=init_range,
-        explore_fraction=explore_fraction, tol=tol,
+    model, switching = choose_model(vf, intersample, winding="field")
+    problem = make_problem(
+        vf, i_f, dt, model, switching=switching, fit_shift=fit_shift, shift=shift,
+        front_ends=front_ends,
     )  # fmt: skip
-    resistance, inductance = (float(v) for v in 10.0**result.x)
-    i0, resid = _field_linear(resistance, inductance, vf, i_f, dt)
-
-    def residual(theta: np.ndarray) -> np.ndarray:
-        r_, l_ = math.exp(theta[0]), math.exp(theta[1])
-        return i_f - kernels.simulate_rl(r_, l_, theta[2], vf, dt)
-
-    theta = np.array([math.log(resistance), math.log(inductance), i0])
-    lower, upper = log_limits(bounds, theta.size)
-    if polish:
-        theta, resid, jac = levenberg_marquardt(residual, theta, lower=lower, upper=upper)
+    settings = SwarmSettings(
+        n_particles, max_iterations, schedule, w, x0, init_range, explore_fraction, tol
+    )
+    result = swarm_stage(problem, bounds, settings, rng_)
+    if intersample == "auto" and problem.inp.model == "smooth" and front_ends is None:
+        hold = make_problem(vf, i_f, dt, "hold", switching=switching)
+        problem, fit = hold_or_smooth(problem, hold, result, bounds, polish=polish)
     else:
-        resid = residual(theta)
-        jac = jacobian(residual, theta)
-    std_log = crlb_std(jac, resid, math.exp(theta[1] - theta[0]) / dt)
-    resistance, inductance, i0 = math.exp(theta[0]), math.exp(theta[1]), float(theta[2])
+        fit = polish_stage(problem, result, bounds, polish=polish)
+    if compensate_input_noise:
+        eiv = eiv_stage(problem, fit.point, bounds, settings, rng_)
+    else:
+        eiv = EivCorrection(fit.point, 0.0, np.zeros(3))
+    spec = specification_stage(problem, fit, bounds) if polish else None
+    std = std_stage(problem, fit, eiv, spec)
+    point = eiv.point
     return CircuitEstimate(
         circuit="field",
-        resistance_ohm=resistance,
-        inductance_h=inductance,
+        resistance_ohm=point.resistance_ohm,
+        inductance_h=point.inductance_h,
         emf_constant_h=None,
-        initial_current_a=i0,
-        rms_a=float(np.sqrt(np.mean(resid * resid))),
-        std={"R": resistance * std_log[0], "L": inductance * std_log[1]},
+        initial_current_a=point.initial_current_a,
+        rms_a=float(np.sqrt(np.mean(point.residual * point.residual))),
+        std={"R": std["R"], "L": std["L"]},
         n_samples=n,
         search_range=bounds,
         pso=result,
         polished=polish,
+        input_noise_var=eiv.input_noise_var,
+        intersample=problem.inp.model,
+        shift_samples=point.shift,
+        shift_std=std.get("shift", 0.0),
+        coverage=problem.segments.covered / n,
     )

@@ -45,6 +45,13 @@ class CircuitEstimate:
         evidence about the motor, whatever their ``std``, and must not be used.
     note : str
         Why ``describes_window`` is False (empty otherwise).
+    intersample : {"hold", "smooth", "switched"}
+        The voltage's intersample model used (see :mod:`observer.estimation.intersample`).
+    shift_samples, shift_std : float
+        Fitted delay of the voltage channel behind the current channel, and its
+        one-sigma uncertainty (sample periods; 0 and 0 when not fitted).
+    coverage : float
+        Share of the window's samples inside segments (1 unless ``switched``).
     """
 
     circuit: str
@@ -61,6 +68,10 @@ class CircuitEstimate:
     input_noise_var: float = 0.0
     describes_window: bool = True
     note: str = ""
+    intersample: str = "hold"
+    shift_samples: float = 0.0
+    shift_std: float = 0.0
+    coverage: float = 1.0
 
     @property
     def time_constant_s(self) -> float:
@@ -86,6 +97,10 @@ class CircuitEstimate:
         out["n_samples"] = self.n_samples
         out["input_noise_var"] = self.input_noise_var
         out["describes_window"] = self.describes_window
+        out["intersample"] = self.intersample
+        out["shift_samples"] = self.shift_samples
+        out["shift_std"] = self.shift_std
+        out["coverage"] = self.coverage
         if self.note:
             out["note"] = self.note
         out["iterations"] = self.pso.n_iterations

@@ -133,7 +133,7 @@ class Daemon:
         #: Names every estimate and health message carries.
         self.ids = names(self.drive_id, self.motor_id)
         self.ring = RingBuffer(max(1024, int(config.observer.buffer_s * sample_rate_hint_hz)))
-        self.observer = SlidingWindowObserver(self.ring, config.observer)
+        self.observer = SlidingWindowObserver(self.ring, config.observer, chain=config.chain)
         self.zenoh = ZenohPublisher(config.zenoh, self.drive_id, self.motor_id)
         self.mcap = (
             McapLog(
@@ -357,7 +357,7 @@ def run_offline(
     of each block read.
     """
     ring = RingBuffer(max(1024, int(config.observer.buffer_s * sample_rate_hint_hz)))
-    observer = SlidingWindowObserver(ring, config.observer)
+    observer = SlidingWindowObserver(ring, config.observer, chain=config.chain)
     with source:
         for block in source:
             ring.write(block)

@@ -20,6 +20,15 @@ this window exceeds its limit is not identified by the window (e.g. ``Lf``
 under a constant field voltage): it is *held* at its last accepted value and
 reported with ``quality = "held"`` and the window's ``rel_std``.
 
+Measurement chain: each circuit's intersample model (how the voltage behaves
+between samples, :mod:`observer.estimation.intersample`) and the relative delay
+of its voltage channel are properties of the drive and its data acquisition,
+not of a window. Unless ``[chain]`` fixes them, the first
+``chain_windows`` estimated windows decide them from the data (each window
+votes for a model and fits the delay); then they are held, and every later
+window estimates only ``R``, ``L`` (and ``K``), more precisely. A window whose
+model cannot describe it (``describes_window`` false) moves nothing.
+
 Windows with a gap, a time jump, a stuck channel or too few samples are
 skipped and counted by reason; nothing here raises into the caller's loop.
 """
@@ -37,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from observer.config import ObserverConfig
+from observer.config import ChainConfig, ObserverConfig
 from observer.estimation import (
     CIRCUIT_CHANNELS,
     CircuitEstimate,
@@ -48,6 +57,7 @@ from observer.estimation import (
     estimate_field,
     field_search_range,
 )
+from observer.estimation.frontend import winding_front_ends
 from observer.estimation.motor import MotorParameters
 from observer.service.ringbuffer import RingBuffer, Window
 
@@ -70,6 +80,37 @@ class _Tracker:
     # Recent accepted values per parameter: jumps are measured from their median,
     # so a slow slide of small biased steps is caught too.
     recent: dict[str, deque[float]] = field(default_factory=dict)
+
+
+@dataclass
+class _ChainState:
+    """What the first windows found about a circuit's measurement chain."""
+
+    model: str | None = None  # decided intersample model (None: still deciding)
+    shift: float = 0.0  # decided relative delay of the voltage (sample periods)
+    votes: Counter[str] = field(default_factory=Counter)
+    shifts: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+
+    def record(self, model: str, shift: float, shift_std: float) -> None:
+        self.votes[model] += 1
+        if shift_std > 0 and math.isfinite(shift_std):
+            self.shifts.setdefault(model, []).append((shift, shift_std))
+
+    def decide(self) -> None:
+        """Majority model; its windows' delays averaged by inverse variance."""
+        model = self.votes.most_common(1)[0][0]
+        pairs = self.shifts.get(model, [])
+        if pairs:
+            weights = np.array([1.0 / s**2 for _, s in pairs])
+            self.shift = float(np.dot(weights, [v for v, _ in pairs]) / weights.sum())
+        self.model = model
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "model": self.model,
+            "shift_samples": self.shift if self.model is not None else None,
+            "votes": dict(self.votes),
+        }
 
 
 @dataclass(frozen=True)
@@ -150,15 +191,18 @@ class SlidingWindowObserver:
         ring: RingBuffer,
         config: ObserverConfig,
         *,
+        chain: ChainConfig | None = None,
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         self.ring = ring
         self.config = config
+        self.chain = chain if chain is not None else ChainConfig()
         self._clock = clock
         self.window_ns = int(round(config.window_s * _NS))
         self.hop_ns = int(round(config.hop_s * _NS))
         self.circuits = ("field", "armature") if config.circuits == "both" else (config.circuits,)
         self._trackers = {c: _Tracker() for c in self.circuits}
+        self._chain_state = {c: _ChainState() for c in self.circuits}
         self._anchor_ns: int | None = None
         self.next_index = 0
         self.counts: Counter[str] = Counter()
@@ -329,19 +373,59 @@ class SlidingWindowObserver:
             init_range=init,
             explore_fraction=cfg.explore_fraction if warm else 0.0,
         )
+        kwargs.update(self._chain_kwargs(circuit, k))
         est: CircuitEstimate
         if circuit == "field":
             est = estimate_field(s["vf"], s["if"], dt, **kwargs)
         else:
             est = estimate_armature(s["va"], s["ia"], s["if"], s["omega"], dt, **kwargs)
-        return self._judge(circuit, tracker, est, warm)
+        self._learn_chain(circuit, est)
+        out = self._judge(circuit, tracker, est, warm)
+        out["chain"] = {
+            "intersample": est.intersample,
+            "shift_samples": est.shift_samples,
+            "decided": self._chain_state[circuit].model is not None,
+        }
+        return out
+
+    def _chain_kwargs(self, circuit: str, decimate: int) -> dict[str, Any]:
+        """The estimator's chain options for this circuit: configured, decided, or still open."""
+        if decimate > 1:
+            # Voltages averaged over each new period, currents sampled at its
+            # start: the held model, exactly.
+            return {"intersample": "hold"}
+        out: dict[str, Any] = {"front_ends": winding_front_ends(self.chain, circuit)}
+        state = self._chain_state[circuit]
+        if self.chain.intersample != "auto":
+            out["intersample"] = self.chain.intersample
+        elif state.model is not None:
+            out["intersample"] = state.model
+            out["fit_shift"] = False
+            out["shift"] = state.shift
+        return out
+
+    def _learn_chain(self, circuit: str, est: CircuitEstimate) -> None:
+        state = self._chain_state[circuit]
+        if state.model is not None or self.chain.intersample != "auto":
+            return
+        if self.config.decimate > 1:
+            return
+        if not est.describes_window:
+            return
+        state.record(est.intersample, est.shift_samples, est.shift_std)
+        if sum(state.votes.values()) >= self.config.chain_windows:
+            state.decide()
+            log.info(
+                "%s measurement chain decided over %d windows: %s voltage, delay %.2f samples",
+                circuit, sum(state.votes.values()), state.model, state.shift,
+            )  # fmt: skip
 
     def _judge(
         self, circuit: str, tracker: _Tracker, est: CircuitEstimate, warm: bool
     ) -> dict[str, Any]:
         """Per-parameter quality, the values reported, and the next window's warm start."""
         cfg = self.config
-        limits = {"R": cfg.quality.R, "L": cfg.quality.L, "K": cfg.quality.K}
+        limits = cfg.quality.limits(circuit)
         agree = {"R": cfg.agree.R, "L": cfg.agree.L, "K": cfg.agree.K}
         raw = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}
         quality: dict[str, str] = {}
@@ -429,6 +513,7 @@ class SlidingWindowObserver:
             "last_skip_reason": self.last_skip_reason,
             "warnings": sorted(self.warnings),
             "range_factor": {c: t.factor for c, t in self._trackers.items()},
+            "chain": {c: st.to_dict() for c, st in self._chain_state.items()},
         }
 
 

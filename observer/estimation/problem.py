@@ -1,0 +1,286 @@
+"""One winding's output-error problem over a window: what the swarm and the polish minimise.
+
+A :class:`WindingProblem` holds the measured current, the voltage's
+intersample model (:mod:`observer.estimation.intersample`) and, for the
+armature, the EMF regressor ``if*omega``. It gives the swarm its cost (eq. (1)
+for a whole swarm, :func:`~observer.estimation.intersample_kernels.moment_swarm_costs`)
+and the polish its residual, with every segment's initial current solved in
+closed form. The nonlinear parameters are ``ln R``, ``ln L``, for the armature
+``K`` (unless held), and, where the model has one, the relative delay of the
+voltage behind the current (sample periods).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from observer.estimation import intersample_kernels as ik
+from observer.estimation.frontend import FrontEnd, apply_relative, edge_samples
+from observer.estimation.intersample import (
+    InputModel,
+    Segments,
+    Switching,
+    build_input,
+    cubic_moments,
+    find_switching,
+    rail_samples,
+)
+from observer.estimation.pso import CostFunction
+
+#: The relative delay is searched within this many sample periods either way.
+SHIFT_LIMIT = 1.5
+
+#: The voltage's relative first-order lag is searched up to this many sample periods.
+LAG_LIMIT = 3.0
+
+
+@dataclass
+class WindingProblem:
+    """The measured window of one winding and its input model.
+
+    Attributes
+    ----------
+    voltage, current : (n,) arrays
+        Winding voltage samples (V) and current samples (A).
+    dt : float
+        Sample period (s).
+    inp : InputModel
+        The voltage's intersample model (moments, segments).
+    emf : (n,) array or None
+        ``if*omega`` samples (A*rad/s) for the armature; None for the field.
+    emf_constant : float or None
+        ``K`` held at this value (armature without speed); None: fitted.
+    fit_shift : bool
+        Whether the relative delay is a parameter (``smooth`` and ``switched`` models).
+    """
+
+    voltage: np.ndarray
+    current: np.ndarray
+    dt: float
+    inp: InputModel
+    emf: np.ndarray | None = None
+    emf_constant: float | None = None
+    fit_shift: bool = False
+    fit_lag: bool = False
+    lag: float = 0.0
+    _mu_emf: np.ndarray | None = field(default=None, repr=False)
+    _mu_cache: dict[tuple[float, float], np.ndarray] = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.emf is not None:
+            self._mu_emf = cubic_moments(self.emf, self.inp.segments, 0.0)
+        if self.lag == 0.0:
+            self._mu_cache[(self.inp.shift, 0.0)] = self.inp.mu
+        if self.inp.model in ("hold", "averaged"):
+            self.fit_shift = False
+            self.fit_lag = False
+
+    # ------------------------------------------------------------- layout
+    @property
+    def segments(self) -> Segments:
+        return self.inp.segments
+
+    @property
+    def emf_mode(self) -> int:
+        if self.emf is None:
+            return ik.EMF_NONE
+        return ik.EMF_FIT if self.emf_constant is None else ik.EMF_HELD
+
+    @property
+    def fits_k(self) -> bool:
+        return self.emf_mode == ik.EMF_FIT
+
+    @property
+    def mu_emf(self) -> np.ndarray:
+        return self._mu_emf if self._mu_emf is not None else self.inp.mu
+
+    def mu(self, shift: float, lag: float | None = None) -> np.ndarray:
+        """Voltage moments read ``shift`` periods late through a ``lag`` (periods), cached."""
+        lag_ = self.lag if lag is None else float(lag)
+        key = (float(shift), lag_)
+        mu = self._mu_cache.get(key)
+        if mu is None:
+            seg = self.inp.segments
+            mu = cubic_moments(self.voltage, seg, key[0])
+            if lag_ > 0.0:
+                lagged = np.array(self.voltage, dtype=np.float64)
+                ik.lag_samples(mu, self.voltage, seg.starts, seg.ends, lag_, lagged)
+                mu = cubic_moments(lagged, seg, 0.0)
+            if len(self._mu_cache) > 64:
+                self._mu_cache.clear()
+            self._mu_cache[key] = mu
+        return mu
+
+    def with_shift(self, shift: float, lag: float | None = None) -> WindingProblem:
+        """The same problem with the input model read at ``shift`` (and ``lag``)."""
+        lag_ = self.lag if lag is None else float(lag)
+        inp = InputModel(
+            self.inp.model, self.mu(shift, lag_), self.inp.segments, shift, self.inp.switching
+        )
+        return WindingProblem(
+            self.voltage, self.current, self.dt, inp, self.emf, self.emf_constant,
+            self.fit_shift, self.fit_lag, lag_,
+        )  # fmt: skip
+
+    # ------------------------------------------------------------- the swarm
+    def swarm_cost(self, input_noise_var: float = 0.0) -> CostFunction:
+        """Eq. (1) for a whole swarm over ``log10 (R, L)``, at the model's present shift."""
+        mu = self.inp.mu
+        mu_emf = self.mu_emf
+        seg = self.inp.segments
+        k_arg = 0.0 if self.emf_constant is None else float(self.emf_constant)
+        mode = self.emf_mode
+
+        def cost(x: np.ndarray) -> np.ndarray:
+            return ik.moment_swarm_costs(
+                x, mu, mu_emf, self.current, seg.starts, seg.ends, self.dt, True,
+                mode, k_arg, input_noise_var,
+            )  # fmt: skip
+
+        return cost
+
+    # ------------------------------------------------------------- the polish
+    def theta0(
+        self, resistance: float, inductance: float, emf_constant: float | None
+    ) -> np.ndarray:
+        """Starting parameters ``(ln R, ln L[, K][, shift])``."""
+        theta = [math.log(resistance), math.log(inductance)]
+        if self.fits_k:
+            theta.append(0.0 if emf_constant is None else float(emf_constant))
+        if self.fit_shift:
+            theta.append(self.inp.shift)
+        if self.fit_lag:
+            theta.append(self.lag)
+        return np.array(theta)
+
+    def unpack(self, theta: np.ndarray) -> tuple[float, float, float, float]:
+        """``(R, L, K, shift)`` from ``theta`` (K: the held value, or 0 for the field)."""
+        resistance = math.exp(theta[0])
+        inductance = math.exp(theta[1])
+        i = 2
+        if self.fits_k:
+            k = float(theta[i])
+            i += 1
+        else:
+            k = 0.0 if self.emf_constant is None else float(self.emf_constant)
+        shift = float(theta[i]) if self.fit_shift else self.inp.shift
+        return resistance, inductance, k, shift
+
+    def lag_of(self, theta: np.ndarray) -> float:
+        """The voltage's relative lag (periods) in ``theta``."""
+        return float(theta[-1]) if self.fit_lag else self.lag
+
+    def residual(self, theta: np.ndarray) -> np.ndarray:
+        """Current residual (A) over the segments' samples, initial currents projected out."""
+        resistance, inductance, k, shift = self.unpack(theta)
+        out, _ = self.evaluate(resistance, inductance, k, shift, self.lag_of(theta))
+        return out
+
+    def evaluate(
+        self,
+        resistance: float,
+        inductance: float,
+        emf_constant: float,
+        shift: float,
+        lag: float | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Residual (A) and each segment's initial current (A) at these parameters."""
+        seg = self.inp.segments
+        out = np.empty(seg.covered)
+        initial = np.empty(seg.count)
+        ik.moment_residual(
+            resistance, inductance, emf_constant, self.mu(shift, lag), self.mu_emf, self.current,
+            seg.starts, seg.ends, self.dt, self.emf is not None, out, initial,
+        )  # fmt: skip
+        return out, initial
+
+    def best_k(self, resistance: float, inductance: float, shift: float) -> float:
+        """``K`` solved in closed form at ``(R, L, shift)`` (the held value if held)."""
+        if not self.fits_k:
+            return 0.0 if self.emf_constant is None else float(self.emf_constant)
+        # The residual is affine in K: two evaluations give its slope.
+        r0, _ = self.evaluate(resistance, inductance, 0.0, shift)
+        r1, _ = self.evaluate(resistance, inductance, 1.0, shift)
+        slope = r1 - r0
+        denom = float(slope @ slope)
+        return -float(r0 @ slope) / denom if denom > 0 else 0.0
+
+    def limits(self, log_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper limits of ``theta`` from the swarm's ``log10`` box."""
+        size = 2 + int(self.fits_k) + int(self.fit_shift) + int(self.fit_lag)
+        lower = np.full(size, -np.inf)
+        upper = np.full(size, np.inf)
+        lower[:2] = log_bounds[:, 0] * math.log(10.0)
+        upper[:2] = log_bounds[:, 1] * math.log(10.0)
+        i = 2 + int(self.fits_k)
+        if self.fit_shift:
+            lower[i] = -SHIFT_LIMIT
+            upper[i] = SHIFT_LIMIT
+            i += 1
+        if self.fit_lag:
+            lower[i] = 0.0
+            upper[i] = LAG_LIMIT
+        return lower, upper
+
+
+def make_problem(
+    voltage: np.ndarray,
+    current: np.ndarray,
+    dt: float,
+    model: str,
+    *,
+    switching: object = None,
+    emf: np.ndarray | None = None,
+    emf_constant: float | None = None,
+    fit_shift: bool = True,
+    shift: float = 0.0,
+    fit_lag: bool = False,
+    lag: float = 0.0,
+    also_checked: tuple[np.ndarray, ...] = (),
+    front_ends: tuple[FrontEnd, FrontEnd] | None = None,
+) -> WindingProblem:
+    """A :class:`WindingProblem` for voltage samples under intersample ``model``.
+
+    Samples where the voltage, the current or a channel of ``also_checked``
+    (the armature's ``if`` and ``omega``) sits at its ADC's rail
+    (:func:`~observer.estimation.intersample.rail_samples`) leave the segments.
+    ``shift`` is the relative delay to start from (or to hold, without ``fit_shift``).
+    ``front_ends`` ``(voltage, current)`` are the channels' known front ends: a
+    filtered (``smooth``) voltage is then passed through ``H_i/H_v``
+    (:func:`~observer.estimation.frontend.apply_relative`) and the window's
+    edges, which that spoils, leave the segments.
+    """
+    valid = ~(rail_samples(voltage) | rail_samples(current))
+    for x in also_checked:
+        valid &= ~rail_samples(x)
+    if (
+        front_ends is not None
+        and model in ("smooth", "hold")
+        and not (front_ends[0] == front_ends[1])
+    ):
+        fe_v, fe_i = front_ends
+        voltage = apply_relative(voltage, dt, fe_v, fe_i)
+        if emf is not None:
+            emf = apply_relative(emf, dt, fe_i, fe_i)
+        edge = min(edge_samples(fe_v, fe_i, dt), voltage.shape[0] // 4)
+        valid = valid.copy()
+        valid[:edge] = False
+        valid[voltage.shape[0] - edge :] = False
+        model = "smooth"
+    if front_ends is not None and model == "switched" and front_ends[0] != front_ends[1]:
+        # A filtered jump settles over the voltage filter's response; where the
+        # current's front end differs, the samples in it do not relate to the
+        # current as the segment assumes (equal front ends relate exactly).
+        sw = switching if isinstance(switching, Switching) else find_switching(voltage)
+        settle = edge_samples(front_ends[0], front_ends[0], dt) - 2
+        if settle > 0 and sw.transitions is not None:
+            widened = sw.transitions.copy()
+            for k in np.flatnonzero(sw.transitions):
+                widened[k : k + settle + 1] = True
+            switching = Switching(sw.jumps, sw.clean_share, sw.noise_v, widened)
+    inp = build_input(voltage, model, shift=shift, switching=switching, valid=valid)  # type: ignore[arg-type]
+    problem = WindingProblem(voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag)
+    return problem.with_shift(shift, lag) if lag else problem

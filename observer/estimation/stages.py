@@ -1,0 +1,357 @@
+"""The stages every winding estimate goes through, each a function that can be tested alone.
+
+1. :func:`swarm_stage` -- the paper's swarm over ``log10 (R, L)``; ``K`` and the
+   segments' initial currents solved in closed form for every particle;
+2. :func:`polish_stage` -- Levenberg-Marquardt on ``(ln R, ln L[, K][, shift])``
+   from the swarm's best (``shift``: the relative delay of the voltage channel),
+   and the Jacobian there;
+3. :func:`eiv_stage` -- the errors-in-variables correction: noise on the
+   measured voltage biases output error towards a lower model gain; its
+   variance is read from the residual, its expected share of eq. (1)
+   subtracted and the swarm re-run near the plain estimate;
+4. :func:`std_stage` -- the uncertainty: the sandwich bound at the optimum,
+   combined with how far input noise could have moved the estimate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from observer.estimation import intersample_kernels as ik
+from observer.estimation.polish import jacobian, levenberg_marquardt
+from observer.estimation.problem import WindingProblem
+from observer.estimation.pso import ParticleSwarm, PSOResult
+from observer.estimation.ranges import SearchRange
+from observer.estimation.swarm import run_swarm
+from observer.estimation.uncertainty import crlb_std, input_noise_variance
+
+#: The errors-in-variables refinement searches within this factor of the plain estimate.
+COMPENSATION_FACTOR = 1.5
+
+#: ``smooth`` replaces ``hold`` only when it lowers eq. (1) by this many residual
+#: variances: one extra parameter (the shift) alone lowers it by about one.
+SMOOTH_OVER_HOLD = 25.0
+
+#: A cubic read this many periods late imitates a held voltage (sample periods),
+#: within ``HOLD_SHIFT_WIDTH``.
+HOLD_SHIFT = -0.5
+HOLD_SHIFT_WIDTH = 0.2
+
+
+@dataclass(frozen=True)
+class SwarmSettings:
+    """The swarm's settings, as :func:`observer.estimation.estimate_field` takes them."""
+
+    n_particles: int = 100
+    max_iterations: int = 100
+    schedule: str | tuple[float, float] = "s-k"
+    w: float = 0.7
+    x0: tuple[float, float] | None = None
+    init_range: SearchRange | None = None
+    explore_fraction: float = 0.0
+    tol: float = 0.0
+
+
+@dataclass(frozen=True)
+class WindingPoint:
+    """Parameters at one point and the current residual (A) there.
+
+    Attributes
+    ----------
+    resistance_ohm, inductance_h : float
+    emf_constant_h : float
+        ``K`` (armature; 0 for the field).
+    shift : float
+        Relative delay of the voltage channel behind the current (sample periods).
+    initial_current_a : float
+        Fitted current at the first segment's first sample.
+    residual : array
+    """
+
+    resistance_ohm: float
+    inductance_h: float
+    emf_constant_h: float
+    shift: float
+    initial_current_a: float
+    residual: np.ndarray
+    lag: float = 0.0
+
+    def values(self) -> np.ndarray:
+        return np.array([self.resistance_ohm, self.inductance_h, self.emf_constant_h])
+
+
+@dataclass(frozen=True)
+class PolishedFit:
+    """The polished fit: its point, ``theta`` and the Jacobian there."""
+
+    point: WindingPoint
+    theta: np.ndarray
+    jacobian: np.ndarray
+
+
+@dataclass(frozen=True)
+class EivCorrection:
+    """Outcome of the errors-in-variables compensation.
+
+    Attributes
+    ----------
+    point : WindingPoint
+        The compensated estimate, or the plain one when no input noise was
+        found or the correction was refused.
+    input_noise_var : float
+        Variance (V^2) of the input noise compensated (0 when refused).
+    bias_bound : (3,) array
+        How far input noise could have moved ``R, L, K`` (ohm, H, V*s/(rad*A)).
+    """
+
+    point: WindingPoint
+    input_noise_var: float
+    bias_bound: np.ndarray
+
+
+def point_at(
+    problem: WindingProblem, resistance: float, inductance: float, shift: float
+) -> WindingPoint:
+    """The point at ``(R, L, shift)`` with ``K`` and the initial currents solved for."""
+    k = problem.best_k(resistance, inductance, shift)
+    resid, initial = problem.evaluate(resistance, inductance, k, shift)
+    i0 = float(initial[0]) if initial.size else 0.0
+    return WindingPoint(resistance, inductance, k, shift, i0, resid, problem.lag)
+
+
+def swarm_stage(
+    problem: WindingProblem,
+    bounds: SearchRange,
+    settings: SwarmSettings,
+    rng: np.random.Generator,
+    input_noise_var: float = 0.0,
+) -> PSOResult:
+    """Stage 1: the swarm over ``log10 (R, L)``."""
+    return run_swarm(
+        problem.swarm_cost(input_noise_var), bounds, n_particles=settings.n_particles,
+        max_iterations=settings.max_iterations, schedule=settings.schedule, w=settings.w,
+        rng=rng, x0=settings.x0, init_range=settings.init_range,
+        explore_fraction=settings.explore_fraction, tol=settings.tol,
+    )  # fmt: skip
+
+
+def polish_stage(
+    problem: WindingProblem, result: PSOResult, bounds: SearchRange, *, polish: bool = True
+) -> PolishedFit:
+    """Stage 2: Levenberg-Marquardt from the swarm's best (``polish`` off: only the Jacobian)."""
+    resistance, inductance = (float(v) for v in 10.0**result.x)
+    k0 = problem.best_k(resistance, inductance, problem.inp.shift)
+    theta = problem.theta0(resistance, inductance, k0)
+    lower, upper = problem.limits(bounds.log_bounds())
+    if polish:
+        theta, resid, jac = levenberg_marquardt(problem.residual, theta, lower=lower, upper=upper)
+    else:
+        resid = problem.residual(theta)
+        jac = jacobian(problem.residual, theta)
+    r, ell, k, shift = problem.unpack(theta)
+    lag = problem.lag_of(theta)
+    _, initial = problem.evaluate(r, ell, k, shift, lag)
+    point = WindingPoint(r, ell, k, shift, float(initial[0]) if initial.size else 0.0, resid, lag)
+    return PolishedFit(point, theta, jac)
+
+
+def hold_or_smooth(
+    smooth: WindingProblem,
+    hold: WindingProblem,
+    result: PSOResult,
+    bounds: SearchRange,
+    *,
+    polish: bool = True,
+) -> tuple[WindingProblem, PolishedFit]:
+    """Stage 2 for a voltage without jumps: polish both ``smooth`` and ``hold``, keep the better.
+
+    A drive that reports the voltage it holds for each period is described
+    exactly by ``hold``; a voltage measured through a filter by ``smooth``.
+    The samples alone do not say which; the current does. A smooth fit whose
+    shift is half a period early (:data:`HOLD_SHIFT`) is a hold in disguise:
+    it beats hold only by averaging the voltage's noise (an errors-in-variables
+    effect, not a better model). Otherwise ``smooth`` is kept when it explains
+    the current decisively better (:data:`SMOOTH_OVER_HOLD` residual variances).
+    """
+    fit_smooth = polish_stage(smooth, result, bounds, polish=polish)
+    fit_hold = polish_stage(hold, result, bounds, polish=polish)
+    if abs(fit_smooth.point.shift - HOLD_SHIFT) < HOLD_SHIFT_WIDTH:
+        # The cubic read half a period early is a held value: the smooth model
+        # imitates hold, and only beats it by smoothing the voltage's noise.
+        return hold, fit_hold
+    rss_smooth = float(fit_smooth.point.residual @ fit_smooth.point.residual)
+    rss_hold = float(fit_hold.point.residual @ fit_hold.point.residual)
+    sigma2 = rss_smooth / max(fit_smooth.point.residual.size, 1)
+    if sigma2 > 0 and (rss_hold - rss_smooth) / sigma2 > SMOOTH_OVER_HOLD:
+        return smooth, fit_smooth
+    return hold, fit_hold
+
+
+def eiv_stage(
+    problem: WindingProblem,
+    plain: WindingPoint,
+    bounds: SearchRange,
+    settings: SwarmSettings,
+    rng: np.random.Generator,
+) -> EivCorrection:
+    """Stage 3: remove the errors-in-variables bias of output error from the plain estimate.
+
+    Noise on the measured voltage (and on ``if*omega``) makes eq. (1) favour a
+    lower model gain, overestimating ``L``. The noise variance is read from the
+    residual's autocorrelation
+    (:func:`~observer.estimation.uncertainty.input_noise_variance`), its
+    expected share of eq. (1) subtracted, and the swarm re-run in a narrow
+    range around ``plain``.
+    """
+    a_, c0, _, _ = ik.moment_coefficients(plain.resistance_ohm, plain.inductance_h, problem.dt)
+    noise_var = input_noise_variance(plain.residual, a_, c0)
+    if not noise_var > 0.0:
+        return EivCorrection(plain, noise_var, np.zeros(3))
+    shifted = (
+        problem.with_shift(plain.shift, plain.lag)
+        if (problem.fit_shift or problem.fit_lag)
+        else problem
+    )
+    # The correction is a few percent: search only near the plain estimate. An
+    # overestimated noise variance makes the compensated cost fall without
+    # bound towards L -> 0 (gain 1/R), a spurious minimum the full range holds.
+    local = bounds.around(
+        plain.resistance_ohm, plain.inductance_h, COMPENSATION_FACTOR
+    ).log_bounds()
+    swarm = ParticleSwarm(
+        shifted.swarm_cost(noise_var), local, n_particles=max(20, settings.n_particles // 2),
+        w=settings.w, schedule=settings.schedule,
+        x0=np.log10([plain.resistance_ohm, plain.inductance_h]), rng=rng,
+    )  # fmt: skip
+    refined = swarm.run(max(30, settings.max_iterations))
+    margin = np.minimum(refined.x - local[:, 0], local[:, 1] - refined.x)
+    resistance, inductance = (float(v) for v in 10.0**refined.x)
+    corrected = point_at(shifted, resistance, inductance, plain.shift)
+    moved = np.abs(corrected.values() - plain.values())
+    if np.all(margin > 0.01 * np.log10(COMPENSATION_FACTOR)):
+        # The Cramer-Rao bound ignores input noise; the size of the correction
+        # bounds how far input noise could have moved the estimate.
+        return EivCorrection(corrected, noise_var, 0.5 * moved)
+    # Pressed against the edge: the compensation model does not fit this
+    # window (weak excitation, or unmodelled physics read as input noise).
+    # Keep the plain fit. L may be off by as much as the box; R and K by as
+    # much as the refused correction would have moved them.
+    moved[1] = max(moved[1], (COMPENSATION_FACTOR - 1.0) * abs(plain.inductance_h))
+    return EivCorrection(plain, 0.0, moved)
+
+
+#: The specification test weights the residual by a low-pass at this fraction of
+#: the sample rate: front ends (anti-aliasing filters sit near fs/4), aliasing
+#: and the reconstruction between samples err at high frequencies.
+SPEC_CUTOFF = 1.0 / 8.0
+
+
+def butter2_lowpass(cutoff: float) -> tuple[np.ndarray, np.ndarray]:
+    """Discrete 2nd-order Butterworth low-pass ``(b, a)``; ``cutoff`` per sample rate."""
+    k = math.tan(math.pi * cutoff)
+    q = math.sqrt(2.0)
+    norm = 1.0 / (1.0 + q * k + k * k)
+    b0 = k * k * norm
+    b = np.array([b0, 2.0 * b0, b0])
+    a = np.array([1.0, 2.0 * (k * k - 1.0) * norm, (1.0 - q * k + k * k) * norm])
+    return b, a
+
+
+@dataclass(frozen=True)
+class SpecificationTest:
+    """The low-frequency refit and the model error it reveals.
+
+    Attributes
+    ----------
+    values : (3,) array
+        ``R, L, K`` of the low-frequency fit.
+    model_std : (3,) array
+        One-sigma model error of ``R, L, K``: the part of the two fits'
+        difference their noise does not explain (0 when it does).
+    """
+
+    values: np.ndarray
+    model_std: np.ndarray
+
+
+def specification_stage(
+    problem: WindingProblem, fit: PolishedFit, bounds: SearchRange
+) -> SpecificationTest:
+    """Refit with the residual weighted to low frequencies; excess disagreement is model error.
+
+    A Hausman test in effect: with a correct model both fits estimate the same
+    parameters and differ by noise only, with variance about the difference
+    of their variances; a model that errs at high frequencies (front ends,
+    aliasing, the voltage between samples) pulls the full fit and not the
+    low-frequency one. What the noise does not explain is reported as model
+    error.
+    """
+    lengths = problem.segments.ends - problem.segments.starts + 1
+    b, a = butter2_lowpass(SPEC_CUTOFF)
+
+    def weighted(theta: np.ndarray) -> np.ndarray:
+        r = problem.residual(theta)
+        out = np.empty_like(r)
+        ik.lowpass_segments(r, lengths, b, a, out)
+        return out
+
+    lower, upper = problem.limits(bounds.log_bounds())
+    theta_lp, resid_lp, jac_lp = levenberg_marquardt(
+        weighted, fit.theta.copy(), lower=lower, upper=upper, max_iterations=15
+    )
+    tau_samples = math.exp(fit.theta[1] - fit.theta[0]) / problem.dt
+    std_full = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
+    std_lp = crlb_std(jac_lp, resid_lp, tau_samples + 1.0 / SPEC_CUTOFF)
+    r_lp, l_lp, k_lp, _ = problem.unpack(theta_lp)
+    values_lp = np.array([r_lp, l_lp, k_lp])
+    full = fit.point.values()
+    # theta holds ln R, ln L: compare those relatively, K absolutely.
+    delta = np.array([math.log(r_lp / full[0]), math.log(l_lp / full[1]), k_lp - full[2]])
+    noise_var = np.zeros(3)
+    n_core = 2 + int(problem.fits_k)
+    noise_var[:n_core] = np.maximum(std_lp[:n_core] ** 2 - std_full[:n_core] ** 2, 0.0)
+    excess = np.maximum(delta**2 - noise_var, 0.0)
+    model = np.sqrt(excess)
+    model_std = np.array([full[0] * model[0], full[1] * model[1], model[2]])
+    if not problem.fits_k:
+        model_std[2] = 0.0
+    return SpecificationTest(values_lp, model_std)
+
+
+def std_stage(
+    problem: WindingProblem,
+    fit: PolishedFit,
+    eiv: EivCorrection,
+    spec: SpecificationTest | None = None,
+) -> dict[str, float]:
+    """Stage 4: one-sigma uncertainty of ``R, L[, K]`` (and the shift) of the final estimate.
+
+    The sandwich bound at the polished optimum
+    (:func:`~observer.estimation.uncertainty.crlb_std`, relative in ``R`` and
+    ``L``), combined with the bound on the errors-in-variables bias and the
+    model error of the specification test (:func:`specification_stage`).
+    """
+    theta = fit.theta
+    tau_samples = math.exp(theta[1] - theta[0]) / problem.dt
+    std = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
+    point = eiv.point
+    model = spec.model_std if spec is not None else np.zeros(3)
+    out = {
+        "R": float(np.linalg.norm([point.resistance_ohm * std[0], eiv.bias_bound[0], model[0]])),
+        "L": float(np.linalg.norm([point.inductance_h * std[1], eiv.bias_bound[1], model[1]])),
+    }
+    i = 2
+    if problem.emf is not None:
+        out["K"] = (
+            float(np.linalg.norm([std[i], eiv.bias_bound[2], model[2]])) if problem.fits_k else 0.0
+        )
+        i += int(problem.fits_k)
+    if problem.fit_shift:
+        out["shift"] = float(std[i])
+        i += 1
+    if problem.fit_lag:
+        out["lag"] = float(std[i])
+    return out
