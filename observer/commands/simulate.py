@@ -32,6 +32,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "eddy_currents (coupling k^2, 0.2), sensor_offset (ia offset / rated current, 0.01), "
         "sampling_skew (current delay in sample periods, 0.5)",
     )  # fmt: skip
+    parser.add_argument(
+        "--thermal-tau", type=float, default=20.0, metavar="S",
+        help="thermal time constant of the windings under --effect thermal_drift (s)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--change", default=None, metavar="TARGET=REL@S[,...]",
+        help="steps at given times: a parameter (Rf, Lf, Ra, La, K) or the tachometer's gain "
+        "(tach) is multiplied by 1+REL from S seconds on, e.g. Ra=+0.03@30 (a loose "
+        "connection), K=-0.05@60 (a field fault), tach=-0.1@40 (the tachometer reads 10 %% low)",
+    )  # fmt: skip
 
 
 def main(args: argparse.Namespace) -> int:
@@ -47,18 +57,27 @@ def main(args: argparse.Namespace) -> int:
         raise UserError(f"{args.output}: expected a name ending in .csv, .csv.gz or .mcap")
     check_outputs(("OUT", args.output))
     motor = MOTORS[args.motor]
+    from observer.simulation.effects_sim import Change, parse_changes, parse_effects
+
     effects = None
     if args.effect is not None:
-        from observer.simulation.effects_sim import parse_effects
-
         try:
             effects = parse_effects(args.effect)
         except ValueError as exc:
             raise UserError(f"--effect: {exc}") from None
+    changes: tuple[Change, ...] = ()
+    if args.change is not None:
+        try:
+            changes = parse_changes(args.change)
+        except ValueError as exc:
+            raise UserError(f"--change: {exc}") from None
+    if not args.thermal_tau > 0:
+        raise UserError(f"--thermal-tau must be > 0, got {args.thermal_tau}")
     try:
         rec = simulate(
             motor, duration_s=args.duration, sample_rate_hz=args.rate, noise=args.noise,
-            seed=args.seed, effects=effects,
+            seed=args.seed, effects=effects, changes=changes,
+            thermal_time_constant_s=args.thermal_tau,
         )  # fmt: skip
     except ValueError as exc:
         raise UserError(str(exc)) from None

@@ -31,12 +31,21 @@ each departure is known. This module adds them to the drive simulator:
 
 Plant effects are integrated in continuous time (RK4 sub-steps); sensor effects
 are applied to the recorded signals.
+
+Besides these, a recording can carry *changes* (:class:`Change`, parsed by
+:func:`parse_changes`): at a given time a parameter steps by a relative amount
+and stays there (``Ra=+0.03@30``: a loose connection adds 3 % to the armature
+resistance 30 s in; ``K=-0.05@60``: a field fault takes 5 % off the EMF
+constant), or the tachometer loses part of its reading (``tach=-0.1@40``: from
+40 s it reads 10 % low, and the drive's speed loop, which uses it, sees the low
+reading too). The tracker's change detection and tachometer cross-check are
+proved on such recordings.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -78,8 +87,11 @@ MAGNITUDE_UNITS: dict[str, str] = {
     "sampling_skew": "current channels' sampling delay (sample periods)",
 }
 
-#: Thermal time constant of the windings used by the simulator (s).
+#: Thermal time constant of the windings used by the simulator unless told otherwise (s).
 THERMAL_TIME_CONSTANT_S = 20.0
+
+#: What a :class:`Change` can step: a winding parameter, or the tachometer's gain.
+CHANGE_TARGETS = ("Rf", "Lf", "Ra", "La", "K", "tach")
 
 
 @dataclass(frozen=True)
@@ -168,13 +180,26 @@ def parse_effects(text: str) -> dict[str, float]:
 
 
 def plant_effects(
-    motor: MotorParameters, magnitudes: Mapping[str, float], dt: float
+    motor: MotorParameters,
+    magnitudes: Mapping[str, float],
+    dt: float,
+    *,
+    thermal_time_constant_s: float = THERMAL_TIME_CONSTANT_S,
 ) -> PlantEffects:
-    """Turn relative magnitudes (see :data:`MAGNITUDE_UNITS`) into physical ones for ``motor``."""
+    """Turn relative magnitudes (see :data:`MAGNITUDE_UNITS`) into physical ones for ``motor``.
+
+    ``thermal_time_constant_s`` is the windings' thermal time constant (s) of
+    ``thermal_drift``.
+    """
     unknown = set(magnitudes) - set(EFFECT_NAMES)
     if unknown:
         raise ValueError(f"unknown effect(s) {sorted(unknown)}")
-    kw: dict[str, float] = {"brush_width_a": 0.02 * motor.rated_armature_current_a}
+    if not thermal_time_constant_s > 0:
+        raise ValueError(f"thermal time constant must be > 0 s, got {thermal_time_constant_s}")
+    kw: dict[str, float] = {
+        "brush_width_a": 0.02 * motor.rated_armature_current_a,
+        "thermal_time_constant_s": thermal_time_constant_s,
+    }
     m = dict(magnitudes)
     if "field_saturation" in m:
         d = m["field_saturation"]
@@ -205,6 +230,74 @@ def plant_effects(
     if "sampling_skew" in m:
         kw["current_delay_s"] = m["sampling_skew"] * dt
     return PlantEffects(**kw)
+
+
+@dataclass(frozen=True)
+class Change:
+    """A step at ``t_s`` (s): ``target`` is multiplied by ``1 + relative`` from then on.
+
+    ``target`` is one of :data:`CHANGE_TARGETS`: a winding parameter (``Ra``,
+    ``K``, ...) or ``tach``, the tachometer's gain (``-0.1``: it reads 10 % low).
+    """
+
+    target: str
+    relative: float
+    t_s: float
+
+    def __post_init__(self) -> None:
+        if self.target not in CHANGE_TARGETS:
+            raise ValueError(
+                f"unknown change target {self.target!r}; expected one of "
+                f"{', '.join(CHANGE_TARGETS)}"
+            )
+        if not (math.isfinite(self.relative) and self.relative > -1.0):
+            raise ValueError(f"change of {self.target}: relative step must be > -1, got "
+                             f"{self.relative}")  # fmt: skip
+        if not (math.isfinite(self.t_s) and self.t_s >= 0):
+            raise ValueError(f"change of {self.target}: time must be >= 0 s, got {self.t_s}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"target": self.target, "relative": self.relative, "t_s": self.t_s}
+
+
+def parse_changes(text: str) -> tuple[Change, ...]:
+    """Parse ``TARGET=REL@T[,TARGET=REL@T...]`` (``Ra=+0.03@30,tach=-0.1@40``).
+
+    Raises
+    ------
+    ValueError
+        Naming the item that is not of that form, or the bad target or number.
+    """
+    out = []
+    for item in text.split(","):
+        item = item.strip()
+        if not item:
+            continue
+        target, eq, rest = item.partition("=")
+        rel, at, when = rest.partition("@")
+        if not (eq and at):
+            raise ValueError(f"{item!r} is not TARGET=RELATIVE@SECONDS (e.g. Ra=+0.03@30)")
+        try:
+            relative, t_s = float(rel), float(when)
+        except ValueError:
+            raise ValueError(f"{item!r}: RELATIVE and SECONDS must be numbers") from None
+        out.append(Change(target.strip(), relative, t_s))
+    if not out:
+        raise ValueError("no change given")
+    return tuple(out)
+
+
+def change_schedule(changes: Sequence[Change], n: int, dt: float) -> np.ndarray:
+    """Per-sample multipliers ``(n, 6)`` of ``Rf, Lf, Ra, La, K`` and the tachometer's gain.
+
+    A change at ``t_s`` acts from the first sample at or after it; several
+    changes of one target multiply.
+    """
+    schedule = np.ones((n, len(CHANGE_TARGETS)))
+    for change in changes:
+        first = min(n, max(0, math.ceil(change.t_s / dt - 1e-9)))
+        schedule[first:, CHANGE_TARGETS.index(change.target)] *= 1.0 + change.relative
+    return schedule
 
 
 # ------------------------------------------------------------------ plant kernel
@@ -257,6 +350,7 @@ def simulate_drive_effects(
     noise: np.ndarray,
     state0: np.ndarray,
     effects: np.ndarray,
+    schedule: np.ndarray,
 ) -> np.ndarray:
     """The drive of :func:`observer.simulation.kernels.simulate_drive` with a non-ideal plant.
 
@@ -264,7 +358,10 @@ def simulate_drive_effects(
     feed-forward with the nominal ``K``); the plant carries the effects of
     ``effects`` (see :meth:`PlantEffects.plant_array`) and all five states
     (``if``, eddy current ``j``, ``ia``, ``omega``, ``theta``) are integrated
-    together by RK4 with ``n_sub`` sub-steps per sample.
+    together by RK4 with ``n_sub`` sub-steps per sample. ``schedule`` (see
+    :func:`change_schedule`) multiplies ``Rf, Lf, Ra, La, K`` sample by sample,
+    and its last column is the tachometer's gain: the speed the controller
+    measures is ``gain * omega`` plus noise.
 
     Returns
     -------
@@ -281,10 +378,13 @@ def simulate_drive_effects(
     int_w = 0.0
     int_i = 0.0
     h = dt / n_sub
+    plant = motor.copy()
     for k in range(n):
+        for p in range(5):
+            plant[p] = motor[p] * schedule[k, p]
         ia_m = ia + noise[k, 1]
         if_m = i_f + noise[k, 3]
-        w_m = omega + noise[k, 4]
+        w_m = schedule[k, 5] * omega + noise[k, 4]
         va, w_ref, int_w, int_i = drive_controller_step(
             control, k_emf, dt, speed_ref[k], ia_m, if_m, w_m, w_ref, int_w, int_i
         )
@@ -298,19 +398,19 @@ def simulate_drive_effects(
         tl = torque_load[k]
         for _ in range(n_sub):
             a1, b1, c1, d1, e1 = _derivatives(
-                i_f, j, ia, omega, theta, v_field, va, tl, motor, effects
+                i_f, j, ia, omega, theta, v_field, va, tl, plant, effects
             )
             a2, b2, c2, d2, e2 = _derivatives(
                 i_f + 0.5 * h * a1, j + 0.5 * h * b1, ia + 0.5 * h * c1,
-                omega + 0.5 * h * d1, theta + 0.5 * h * e1, v_field, va, tl, motor, effects,
+                omega + 0.5 * h * d1, theta + 0.5 * h * e1, v_field, va, tl, plant, effects,
             )  # fmt: skip
             a3, b3, c3, d3, e3 = _derivatives(
                 i_f + 0.5 * h * a2, j + 0.5 * h * b2, ia + 0.5 * h * c2,
-                omega + 0.5 * h * d2, theta + 0.5 * h * e2, v_field, va, tl, motor, effects,
+                omega + 0.5 * h * d2, theta + 0.5 * h * e2, v_field, va, tl, plant, effects,
             )  # fmt: skip
             a4, b4, c4, d4, e4 = _derivatives(
                 i_f + h * a3, j + h * b3, ia + h * c3, omega + h * d3, theta + h * e3,
-                v_field, va, tl, motor, effects,
+                v_field, va, tl, plant, effects,
             )  # fmt: skip
             i_f += h * (a1 + 2 * a2 + 2 * a3 + a4) / 6
             j += h * (b1 + 2 * b2 + 2 * b3 + b4) / 6

@@ -13,7 +13,7 @@ feed-forward, run once per sample on the noisy measurements.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,6 +22,15 @@ import numpy as np
 from observer.estimation.motor import P12, MotorParameters
 from observer.recording import Recording
 from observer.simulation import kernels
+from observer.simulation.effects_sim import (
+    CHANGE_TARGETS,
+    THERMAL_TIME_CONSTANT_S,
+    Change,
+    change_schedule,
+)
+
+#: Rate (Hz) of the true thermal rise stored in a recording's metadata.
+TRUTH_RATE_HZ = 10.0
 
 # (name, duration s, speed / rated, load torque / rated, field voltage / rated)
 DUTY_CYCLE: tuple[tuple[str, float, float, float, float], ...] = (
@@ -143,6 +152,8 @@ def simulate(
     noise: NoiseLevels | float = 0.002,
     seed: int | None = 0,
     effects: Mapping[str, float] | None = None,
+    changes: Sequence[Change] = (),
+    thermal_time_constant_s: float = THERMAL_TIME_CONSTANT_S,
 ) -> Recording:
     """Simulate a recording of ``motor`` in rope-shovel-like operation.
 
@@ -187,24 +198,36 @@ def simulate(
     # Start at rest with the field established, as a drive does after pre-excitation.
     state0 = np.array([field[0] / motor.field_resistance_ohm, 0.0, 0.0])
     fx_meta = None
-    if effects:
+    thermal = None
+    if effects or changes:
         from observer.simulation import effects_sim
 
-        fx = effects_sim.plant_effects(motor, effects, dt)
+        fx = effects_sim.plant_effects(
+            motor, effects or {}, dt, thermal_time_constant_s=thermal_time_constant_s
+        )
         if fx.eddy_coupling > 0:
             n_sub = max(n_sub, math.ceil(10 * dt / fx.eddy_time_constant_s))
+        schedule = change_schedule(changes, n, dt)
         true = effects_sim.simulate_drive_effects(
             dt, n_sub, motor_array, controller_gains(motor, dt),
-            speed, load, field, noise_samples, state0, fx.plant_array(),
+            speed, load, field, noise_samples, state0, fx.plant_array(), schedule,
         )  # fmt: skip
         measured = true[:, :5] + noise_samples
+        measured[:, 4] = schedule[:, 5] * true[:, 4] + noise_samples[:, 4]
         delay = fx.current_delay_s / dt
         if delay:
             for c in (1, 3):
                 measured[:, c] = effects_sim.delayed(true[:, c], delay) + noise_samples[:, c]
         measured[:, 1] += fx.ia_offset_a
         measured[:, 3] += fx.if_offset_a
-        fx_meta = effects_sim.effects_metadata(effects, fx)
+        if effects:
+            fx_meta = effects_sim.effects_metadata(effects, fx)
+        if fx.thermal_rise_per_w > 0:
+            step = max(1, int(round(sample_rate_hz / TRUTH_RATE_HZ)))
+            thermal = {
+                "t_s": [round(k * dt, 9) for k in range(0, n, step)],
+                "theta": [float(x) for x in true[::step, 5]],
+            }
     else:
         _, measured = kernels.simulate_drive(
             dt, n_sub, motor_array, controller_gains(motor, dt),
@@ -229,4 +252,49 @@ def simulate(
     }
     if fx_meta is not None:
         metadata["effects"] = fx_meta
+    if changes:
+        metadata["changes"] = [c.to_dict() for c in changes]
+    if thermal is not None:
+        metadata["thermal"] = thermal
     return Recording(t=t, signals=signals, metadata=metadata)
+
+
+#: Motor fields of the parameters :func:`true_parameters` returns.
+_PARAMETER_FIELDS = {
+    "Rf": "field_resistance_ohm",
+    "Lf": "field_inductance_h",
+    "Ra": "armature_resistance_ohm",
+    "La": "armature_inductance_h",
+    "K": "emf_constant_h",
+}
+
+
+def true_parameters(metadata: Mapping[str, Any], t_s: np.ndarray) -> dict[str, np.ndarray]:
+    """The true parameters of a simulated recording at the times ``t_s`` (s), from its metadata.
+
+    Returns
+    -------
+    dict
+        ``Rf, Lf, Ra, La, K`` (the motor's values, stepped by the recording's
+        ``changes`` and raised by its thermal rise), ``tach`` (the tachometer's
+        gain) and ``theta`` (the windings' relative resistance rise), each an
+        array like ``t_s``.
+
+    Raises
+    ------
+    KeyError
+        If ``metadata`` has no ``motor`` (not a simulated recording).
+    """
+    t = np.asarray(t_s, dtype=float)
+    motor = metadata["motor"]
+    out = {name: np.full(t.shape, float(motor[key])) for name, key in _PARAMETER_FIELDS.items()}
+    out["tach"] = np.ones(t.shape)
+    for change in metadata.get("changes", ()):
+        out[change["target"]] *= np.where(t >= change["t_s"], 1.0 + change["relative"], 1.0)
+    thermal = metadata.get("thermal")
+    theta = np.interp(t, thermal["t_s"], thermal["theta"]) if thermal else np.zeros(t.shape)
+    out["Rf"] *= 1.0 + theta
+    out["Ra"] *= 1.0 + theta
+    out["theta"] = theta
+    assert set(out) == {*CHANGE_TARGETS, "theta"}
+    return out

@@ -125,3 +125,23 @@ def test_same_seed_same_numbers_across_processes(p12_csv):
     )
     assert a.returncode == b.returncode == 0
     assert json.loads(a.stdout)["field"]["R"] == json.loads(b.stdout)["field"]["R"]
+
+
+def test_simulate_changes_and_thermal_time_constant(tmp_path):
+    from observer.recording import read_recording
+
+    out = tmp_path / "steps.mcap"
+    res = run(
+        "simulate", str(out), "--duration", "2", "--change", "Ra=+0.03@1,tach=-0.1@1.5",
+        "--effect", "thermal_drift=0.2", "--thermal-tau", "60", cwd=tmp_path,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    meta = read_recording(out).metadata
+    assert [c["target"] for c in meta["changes"]] == ["Ra", "tach"]
+    assert meta["effects"]["physical"]["thermal_time_constant_s"] == 60.0
+    assert meta["thermal"]["t_s"][0] == 0.0 and len(meta["thermal"]["theta"]) == 20
+    for bad, fragment in (("Ra=0.03", "--change: 'Ra=0.03' is not TARGET"),
+                          ("Q=1@1", "unknown change target 'Q'")):  # fmt: skip
+        res = run("simulate", str(tmp_path / "x.mcap"), "--change", bad, cwd=tmp_path)
+        assert res.returncode == 2 and fragment in res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1

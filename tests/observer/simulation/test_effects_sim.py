@@ -71,3 +71,61 @@ def test_brush_drop_shows_in_the_steady_armature_balance():
     steady &= np.abs(ia) > 0.5
     drop = va[steady] - P12.armature_resistance_ohm * ia[steady] - emf[steady]
     np.testing.assert_allclose(drop, 2.0 * np.sign(ia[steady]), atol=0.1)
+
+
+def test_parse_changes():
+    from observer.simulation.effects_sim import Change, parse_changes
+
+    assert parse_changes("Ra=+0.03@30, tach=-0.1@40") == (
+        Change("Ra", 0.03, 30.0),
+        Change("tach", -0.1, 40.0),
+    )
+    with pytest.raises(ValueError, match="unknown change target 'x'"):
+        parse_changes("x=0.1@2")
+    with pytest.raises(ValueError, match="TARGET=RELATIVE@SECONDS"):
+        parse_changes("Ra=0.03")
+    with pytest.raises(ValueError, match="> -1"):
+        parse_changes("K=-1@3")
+
+
+def test_a_step_of_ra_and_a_tachometer_losing_its_reading_act_from_their_time():
+    from observer.simulation.effects_sim import Change
+    from observer.simulation.simulate import true_parameters
+
+    changes = (Change("Ra", 0.03, 1.0), Change("tach", -0.1, 2.0))
+    rec = simulate(P12, duration_s=3.0, seed=6, noise=0.0, changes=changes)
+    plain = simulate(P12, duration_s=3.0, seed=6, noise=0.0, effects={"brush_drop": 0.0})
+    n1, n2 = int(1.0 / rec.dt), int(2.0 / rec.dt)
+    np.testing.assert_allclose(rec["ia"][: n1 + 1], plain["ia"][: n1 + 1], rtol=1e-9, atol=1e-12)
+    # After the step the armature balance holds with the higher Ra.
+    va, ia, emf = rec["va"], rec["ia"], P12.emf_constant_h * rec["if"] * rec["omega"]
+    k = np.arange(n1 + 10, n2 - 10)
+    steady = k[np.abs(ia[k + 1] - ia[k]) < 1e-5]
+    steady = steady[np.abs(ia[steady]) > 0.5]
+    ra = (va[steady] - emf[steady]) / ia[steady]
+    np.testing.assert_allclose(ra, 3.5 * 1.03, rtol=2e-3)
+    # The tachometer reads 10 % low from 2 s: the measured speed, not the plant's.
+    truth = true_parameters(rec.metadata, rec.t)
+    assert truth["tach"][n2 - 1] == 1.0 and truth["tach"][n2 + 1] == pytest.approx(0.9)
+    assert truth["Ra"][n1 + 1] == pytest.approx(3.5 * 1.03) and truth["Ra"][0] == 3.5
+    assert rec.metadata["changes"][1] == {"target": "tach", "relative": -0.1, "t_s": 2.0}
+
+
+def test_thermal_truth_is_recorded_with_its_time_constant():
+    from observer.simulation.simulate import true_parameters
+
+    fast = simulate(P12, duration_s=6.0, seed=2, noise=0.0, effects={"thermal_drift": 0.3},
+                    thermal_time_constant_s=5.0)  # fmt: skip
+    slow = simulate(P12, duration_s=6.0, seed=2, noise=0.0, effects={"thermal_drift": 0.3},
+                    thermal_time_constant_s=60.0)  # fmt: skip
+    t = np.array([0.0, 3.0, 5.9])
+    rise_fast = true_parameters(fast.metadata, t)["theta"]
+    rise_slow = true_parameters(slow.metadata, t)["theta"]
+    assert rise_fast[0] == 0.0 and rise_fast[-1] > 3 * rise_slow[-1] > 0
+    truth = true_parameters(fast.metadata, t)
+    np.testing.assert_allclose(truth["Rf"], 185.0 * (1 + rise_fast))
+    # In steady field operation if = vf / Rf(t): the recorded rise is the plant's.
+    late = slice(-300, -100)
+    r_late = np.mean(fast["vf"][late]) / np.mean(fast["if"][late])
+    theta = true_parameters(fast.metadata, fast.t[late])["theta"].mean()
+    assert r_late == pytest.approx(185.0 * (1 + theta), rel=2e-3)
