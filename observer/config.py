@@ -50,6 +50,10 @@ class SearchRangeConfig:
         default=None, metadata={"check": _range, "help": "inductance range [low, high] (H)"}
     )
 
+    def __post_init__(self) -> None:
+        if (self.R is None) != (self.L is None):
+            raise ValueError("a search range needs both R and L (or neither)")
+
 
 @dataclass(frozen=True)
 class EstimateConfig:

@@ -26,14 +26,19 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--iterations", type=int, default=40, help="swarm iterations per extension")
     parser.add_argument("--seed", type=int, default=0, help="seed of the swarms")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    from observer.commands.estimate import add_units_option
+
+    add_units_option(parser)
 
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
+    from observer.commands.display import eng, report_findings
+    from observer.commands.estimate import read_checked
     from observer.commands.outputs import check_outputs, write_text
     from observer.diagnosis.diagnose import diagnose
     from observer.diagnosis.effects import LIBRARY
-    from observer.recording import read_recording
+    from observer.estimation import check_data
 
     if args.particles < 2 or args.iterations < 0:
         raise UserError("--particles must be >= 2 and --iterations >= 0")
@@ -44,13 +49,22 @@ def main(args: argparse.Namespace) -> int:
         if bad:
             raise UserError(f"unknown effect(s) {', '.join(bad)}; expected {', '.join(LIBRARY)}")
     check_outputs(("--json", args.json), ("--report", args.report))
-    rec = read_recording(args.recording)
+    rec = read_checked(args.recording, args.units)
+    rec.require("va", "ia", "vf", "if", "omega", path=args.recording, purpose="a diagnosis")
+    findings = check_data(dict(rec.signals), rec.dt, ("field", "armature"), t=rec.t)
+    warnings = report_findings("diagnose", findings, path=args.recording)
     diag = diagnose(
         rec, effects=effects, n_particles=args.particles, iterations=args.iterations,
         seed=args.seed, progress=not args.quiet,
         path=args.recording,
     )  # fmt: skip
-    result = diag.to_dict()
+    param_units = {
+        p.name: ("1" if p.unit == "-" else p.unit)
+        for effect in LIBRARY.values()
+        for p in effect.parameters(diag.context)
+    }
+    units = {**JSON_UNITS, "params": {**param_units, **MAGNITUDE_UNITS}}
+    result = {**diag.to_dict(), "warnings": warnings, "units": units}
     if args.json:
         write_text(args.json, json.dumps(_finite(result), indent=1, allow_nan=False) + "\n")
     if args.report:
@@ -68,9 +82,28 @@ def main(args: argparse.Namespace) -> int:
         print(
             f"  {f.effect:<34} {'earns it' if f.accepted else 'rejected':<9} "
             f"held-out {100 * ev['holdout_gain']:+.2f} % (LR {ev['holdout_lr']:.1f}), "
-            f"rms {f.channel} {f.rms_before:.4g} -> {f.rms_after:.4g} A"
+            f"rms {f.channel} {eng(f.rms_before, 'A')} -> {eng(f.rms_after, 'A')}"
         )
+    for w in warnings:
+        print(f"warning: {w}")
     return 0
+
+
+#: The units of ``--json``: the baseline's as ``dcobserver estimate``'s; effect
+#: parameters carry their unit in their names (``brush_drop_v``, ``..._ohm``).
+JSON_UNITS: dict[str, Any] = {
+    "baseline": {"R": "ohm", "L": "H", "K": "H", "tau": "s", "rms": "A", "std": "as the value"},
+    "noise_floor": {"rms": "A", "white_rms": "A", "coloured_rms": "A", "tau_int_samples": "1"},
+    "mismatch": {"t0": "s", "t1": "s", "z": "1"},
+    "findings": {"rms_before": "A", "rms_after": "A", "params": "see params"},
+}
+#: The plain-words magnitudes among a finding's params (the rest: the effects' own).
+MAGNITUDE_UNITS: dict[str, str] = {
+    "flux_deficit_at_peak_if": "1",
+    "resistance_rise_at_end": "1",
+    "flux_loss_at_peak_ia": "1",
+    "delay_samples": "samples",
+}
 
 
 def _finite(value: Any) -> Any:

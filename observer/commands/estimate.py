@@ -1,4 +1,11 @@
-"""``dcobserver estimate``: estimate the winding parameters of a recording."""
+"""``dcobserver estimate``: estimate the winding parameters of a recording.
+
+Before estimating, the recording is checked against what a DC motor can be
+(:mod:`observer.estimation.plausibility`): an impossible one is a one-line
+error, an unusual one a warning naming the likely cause. Each parameter is
+marked ``ok`` or ``none`` (not identified by this recording) by the daemon's
+rule (:mod:`observer.estimation.identifiability`, limits ``[observer.quality]``).
+"""
 
 from __future__ import annotations
 
@@ -9,6 +16,8 @@ import sys
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", metavar="REC", help="recording: .csv, .csv.gz or .mcap")
@@ -17,28 +26,105 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="which winding to estimate",
     )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--config", metavar="TOML", help="config file narrowing the search")
-    parser.add_argument("--particles", type=int, default=None, help="swarm size [100]")
-    parser.add_argument("--iterations", type=int, default=None, help="swarm iterations [100]")
+    parser.add_argument(
+        "--config", metavar="TOML",
+        help="config file: [estimate] narrows the search, [observer.quality] sets what counts "
+        "as identified",
+    )  # fmt: skip
+    add_units_option(parser)
+    parser.add_argument(
+        "--particles", type=int, default=None, help="swarm size (default: 100, or the config's)"
+    )
+    parser.add_argument(
+        "--iterations", type=int, default=None,
+        help="swarm iterations (default: 100, or the config's)",
+    )  # fmt: skip
     parser.add_argument(
         "--schedule", default=None, choices=("s-k", "k-s", "social", "individual"),
-        help="PSO coefficient schedule [s-k]",
+        help="PSO coefficient schedule (default: s-k, or the config's)",
     )  # fmt: skip
-    parser.add_argument("--seed", type=int, default=None, help="seed of the swarm [0]")
+    parser.add_argument(
+        "--seed", type=int, default=None, help="seed of the swarm (default: 0, or the config's)"
+    )
     parser.add_argument(
         "--no-polish", action="store_true",
         help="report the swarm's best as is (no Levenberg-Marquardt refinement)",
     )  # fmt: skip
 
 
+def add_units_option(parser: argparse.ArgumentParser) -> None:
+    """``--units``: read a recording whose columns are not in SI units."""
+    parser.add_argument(
+        "--units", metavar="COL=UNIT[,...]", default=None,
+        help="the recording's columns are in these units, e.g. t=ms,ia=mA,omega=rpm "
+        "(t: s ms us ns; va, vf: V mV kV; ia, if: A mA kA; omega: rad/s rpm Hz deg/s; "
+        "-UNIT inverts the sign; default: SI)",
+    )  # fmt: skip
+
+
+def read_checked(path: str, units: str | None, notes: list[str] | None = None) -> Any:
+    """The recording at ``path``, converted to SI by a ``--units`` specification.
+
+    ``notes`` collects what the reader noticed (an MCAP file cut short); without
+    it they are logged as warnings.
+    """
+    from observer.cli import UserError
+    from observer.recording import parse_units, read_recording, to_si
+
+    factors = None
+    if units is not None:
+        try:
+            factors = parse_units(units)
+        except ValueError as exc:
+            raise UserError(f"--units: {exc}") from None
+    rec = read_recording(path, notes=notes)
+    if factors:
+        from observer.recording import RecordingError
+
+        try:
+            rec = to_si(rec, factors)
+        except RecordingError as exc:
+            raise UserError(f"{path}: {exc}") from None
+    return rec
+
+
+def circuits_of(rec: Any, requested: str, path: str) -> tuple[str, ...]:
+    """The circuits to estimate; a one-line error that says what the recording allows."""
+    from observer.cli import UserError
+    from observer.estimation import CIRCUIT_CHANNELS
+
+    circuits = ("field", "armature") if requested == "both" else (requested,)
+    possible = [c for c in ("field", "armature") if rec.has(*CIRCUIT_CHANNELS[c])]
+    missing = [c for c in circuits if c not in possible]
+    if not missing:
+        return circuits
+    have = ", ".join(("t", *rec.channels))
+    need = ", ".join(CIRCUIT_CHANNELS[missing[0]])
+    if possible:
+        raise UserError(
+            f"{path}: the {missing[0]} circuit needs {need}; the recording has {have}: "
+            f"use --circuit {possible[0]}"
+        )
+    raise UserError(
+        f"{path}: the recording has {have}: not enough for either circuit "
+        "(field: vf, if; armature: va, ia, if, omega)"
+    )
+
+
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
-    from observer.config import EstimateConfig, load_config
-    from observer.estimation import estimate_recording
-    from observer.recording import read_recording
+    from observer.commands.display import print_warnings, report_findings
+    from observer.config import Config, load_config
+    from observer.estimation import (
+        EstimationError,
+        check_data,
+        check_estimates,
+        estimate_recording,
+        identify,
+    )
 
-    config = load_config(args.config) if args.config else None
-    settings = config.estimate if config is not None else EstimateConfig()
+    config = load_config(args.config) if args.config else Config()
+    settings = config.estimate
     overrides = {
         "particles": args.particles,
         "iterations": args.iterations,
@@ -50,24 +136,94 @@ def main(args: argparse.Namespace) -> int:
         settings = settings.replace(polish=False)
     if settings.particles < 2 or settings.iterations < 1:
         raise UserError("--particles must be >= 2 and --iterations >= 1")
-    rec = read_recording(args.recording)
-    circuits = ("field", "armature") if args.circuit == "both" else (args.circuit,)
-    chain = config.chain if config is not None else None
-    results = estimate_recording(rec, circuits, settings, path=args.recording, chain=chain)
-    report: dict[str, Any] = {name: est.to_dict() for name, est in results.items()}
+    # Warnings are printed with the result: a failure on the way is then one line.
+    warnings: list[str] = []
+    rec = read_checked(args.recording, args.units, notes=warnings)
+    circuits = circuits_of(rec, args.circuit, args.recording)
+    signals = dict(rec.signals)
+    findings = check_data(signals, rec.dt, circuits, t=rec.t)
+    warnings += report_findings("estimate", findings, path=args.recording, defer=True)
+    try:
+        chain = config.chain if args.config else None
+        results = estimate_recording(rec, circuits, settings, path=args.recording, chain=chain)
+    except EstimationError as exc:
+        # A warning often says why (a stuck sensor, a scaling): keep it on the one line.
+        raise EstimationError(f"{exc} (after: {warnings[0]})" if warnings else str(exc)) from None
+    q = config.observer.quality
+    limits = {"R": q.R, "L": q.L, "K": q.K}
+    idents = {c: identify(est, limits) for c, est in results.items()}
+    later = check_estimates(results, idents, signals)
+    warnings += report_findings("estimate", later, path=args.recording, defer=True)
+    print_warnings("estimate", warnings)
+    # A warning about a circuit puts its identified values in doubt: "suspect", not "ok".
+    doubted = {c for f in [*findings, *later] for c in f.circuits}
+    if_mean = float(np.mean(rec["if"])) if rec.has("if") else None
+    report: dict[str, Any] = {}
+    for name, est in results.items():
+        d = est.to_dict()
+        d["quality"] = {
+            p: ("suspect" if q == "ok" and name in doubted else q)
+            for p, q in idents[name].quality().items()
+        }
+        d["not_identified"] = dict(idents[name].reasons)
+        if name == "armature" and if_mean is not None and est.emf_constant_h is not None:
+            d["if_mean"] = if_mean
+            d["kphi"] = est.emf_constant_h * if_mean
+            d["kphi_std"] = est.std.get("K", math.nan) * abs(if_mean)
+        report[name] = d
     truth = rec.metadata.get("motor")
     if args.json:
-        json.dump(report, sys.stdout, indent=None, default=_json_default)
+        out = {
+            **report,
+            "recording": {
+                "path": args.recording,
+                "n_samples": rec.n_samples,
+                "sample_rate_hz": rec.sample_rate_hz,
+                "duration_s": rec.duration_s,
+            },
+            "limits": {"rel_std": limits},
+            "warnings": warnings,
+            "units": {
+                **_json_units(),
+                "recording": {"sample_rate_hz": "Hz", "duration_s": "s"},
+            },
+        }
+        json.dump(_finite(out), sys.stdout, indent=None, allow_nan=False)
         sys.stdout.write("\n")
     else:
-        print(_table(report, dict(truth) if isinstance(truth, Mapping) else None))
+        print(_describe(rec, args.recording))
+        print("\n".join(_table(report, dict(truth) if isinstance(truth, Mapping) else None)))
+        for line in _notes(report, limits, warnings):
+            print(line)
     return 0
 
 
-def _json_default(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+def _json_units() -> dict[str, str]:
+    from observer.commands.display import UNITS
+
+    keys = ["R", "L", "K", "kphi", "kphi_std", "tau", "rms", "i0", "if_mean", "std", "rel_std"]
+    keys += ["input_noise_var", "search_range"]
+    return {k: UNITS.get(k, UNITS["kphi"]) for k in keys}
+
+
+def _finite(value: Any) -> Any:
+    """JSON has no NaN/Inf: they become null."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _describe(rec: Any, path: str) -> str:
+    from observer.commands.display import eng
+
+    return (
+        f"{path}: {rec.n_samples} samples at {eng(rec.sample_rate_hz, 'Hz', 4)} "
+        f"({eng(rec.duration_s, 's', 4)}), channels {', '.join(rec.channels)}"
+    )
 
 
 _TRUTH_KEYS = {
@@ -80,24 +236,68 @@ _TRUTH_KEYS = {
 _UNITS = {"R": "ohm", "L": "H", "K": "H"}
 
 
-def _table(report: dict[str, Any], truth: dict[str, Any] | None) -> str:
-    lines = []
-    header = f"{'circuit':<9} {'param':<5} {'estimate':>12} {'+-1 sigma':>11} {'unit':<4}"
+def _table(report: dict[str, Any], truth: dict[str, Any] | None) -> list[str]:
+    from observer.commands.display import NAMES, eng, eng_pair, percent, table
+
+    header = ["circuit", "param", "estimate", "+-1 sigma", "rel std", "quality"]
     if truth:
-        header += f" {'true':>12} {'error':>8}"
-    lines.append(header)
+        header += ["true", "error"]
+    rows: list[list[str]] = [header]
+
+    def extra(cells: list[str]) -> list[str]:
+        return cells + ["", ""] if truth else cells
+
     for circuit, values in report.items():
+        quality = values["quality"]
         for name in ("R", "L", "K"):
             if name not in values:
                 continue
-            row = (
-                f"{circuit:<9} {name:<5} {values[name]:>12.6g} "
-                f"{values['std'].get(name, float('nan')):>11.3g} {_UNITS[name]:<4}"
-            )
+            value, std = eng_pair(values[name], values["std"].get(name), _UNITS[name])
+            row = [circuit, NAMES[(circuit, name)], value, std]
+            row += [percent(values["rel_std"].get(name)), quality[name]]
             key = _TRUTH_KEYS.get((circuit, name))
-            if truth and key in truth:
-                true = float(truth[key])
-                row += f" {true:>12.6g} {100 * (values[name] - true) / true:>+7.3f}%"
-            lines.append(row)
-        lines.append(f"{circuit:<9} {'rms':<5} {values['rms']:>12.4g} {'':>11} A")
-    return "\n".join(lines)
+            if truth:
+                if key in truth:
+                    true = float(truth[key])
+                    error = percent((values[name] - true) / true, signed=True)
+                    row += [eng(true, _UNITS[name]), error]
+                else:
+                    row += ["", ""]
+            rows.append(row)
+            if name == "L":
+                tau = eng(values["tau"], "s")
+                rows.append(extra([circuit, "tau", tau, "", "", quality["L"]]))
+            if name == "K" and "kphi" in values:
+                kphi, kphi_std = eng_pair(values["kphi"], values.get("kphi_std"), "V*s/rad")
+                rows.append(extra([circuit, "kPhi", kphi, kphi_std, "", quality["K"]]))
+        rows.append(extra([circuit, "fit rms", eng(values["rms"], "A"), "", "", ""]))
+    return table(rows, "<<>>><" + ("><" if truth else ""))
+
+
+def _notes(report: dict[str, Any], limits: Mapping[str, float], warnings: list[str]) -> list[str]:
+    from observer.commands.display import K_EXPLAINED, NAMES, eng
+
+    lines = []
+    missing = [
+        f"{NAMES[(c, p)]} ({reason})"
+        for c, values in report.items()
+        for p, reason in values["not_identified"].items()
+    ]
+    limit_text = ", ".join(f"{p} {100 * v:g} %" for p, v in limits.items())
+    if missing:
+        lines.append(
+            "not identified by this recording (quality none; do not use these values): "
+            + "; ".join(missing)
+        )
+    suspect = any("suspect" in values["quality"].values() for values in report.values())
+    lines.append(
+        f"quality: ok = identified (relative std within [observer.quality]: {limit_text}); "
+        + ("suspect = identified, but a warning below doubts the data; " if suspect else "")
+        + "none = not identified"
+    )
+    arm = report.get("armature")
+    if arm and "K" in arm:
+        at = f" at the mean field current ({eng(arm['if_mean'], 'A')})" if "kphi" in arm else ""
+        lines.append(K_EXPLAINED.format(at=at))
+    lines += [f"warning: {w}" for w in warnings]
+    return lines

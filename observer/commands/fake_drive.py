@@ -14,6 +14,7 @@ import logging
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -35,9 +36,26 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="stop after S simulated seconds (default: run until killed)")  # fmt: skip
 
 
+def _bounded_int(low: int, high: int, what: str) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{what} must be {low}-{high}, got {value}")
+        return value
+
+    return parse
+
+
+_port = _bounded_int(0, 65535, "a TCP port")
+_device_id = _bounded_int(0, 247, "a Modbus device id")
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="protocol", metavar="PROTOCOL", required=True)
-    fmt = argparse.ArgumentDefaultsHelpFormatter
+    fmt = parser.formatter_class  # the CLI's: defaults shown where they say something
 
     s = sub.add_parser(
         "serial", formatter_class=fmt,
@@ -86,8 +104,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     m.add_argument("--rate", type=float, default=200.0, metavar="HZ",
                    help="the drive's sample (register update) rate (Hz)")  # fmt: skip
     m.add_argument("--host", default="127.0.0.1", help="address to listen on")
-    m.add_argument("--port", type=int, default=5020, help="TCP port (0: any free port)")
-    m.add_argument("--device-id", type=int, default=1, help="Modbus device (unit) id")
+    m.add_argument("--port", type=_port, default=5020, help="TCP port (0: any free port)")
+    m.add_argument("--device-id", type=_device_id, default=1, help="Modbus device (unit) id")
     m.add_argument("--framer", choices=("socket", "rtu"), default="socket",
                    help="Modbus TCP, or RTU frames over TCP (socket://host:port)")  # fmt: skip
     m.add_argument("--exception-every", type=int, default=0, metavar="N",

@@ -1,11 +1,23 @@
-"""``dcobserver replay``: run the observer over a recording or daemon log, as fast as possible."""
+"""``dcobserver replay``: run the observer over a recording or daemon log, as fast as possible.
+
+The first seconds of the file are checked against what a DC motor can be
+before the run (:mod:`observer.estimation.plausibility`); ``--report`` and
+``--png`` write the trend report (:mod:`observer.commands.trend`).
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: Samples read from the start of the file for the checks before the run.
+CHECK_SAMPLES = 20_000
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -14,17 +26,114 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--config", metavar="TOML", default=None,
-        help="take [observer] (windows, seed, swarm) from this file; default: built-in defaults",
+        help="take [observer] (windows, seed, swarm, quality) from this file "
+        "(default: built-in defaults)",
     )  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print each estimate as a JSON line")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--report", metavar="OUT.html", default=None,
+        help="write the trend report: each parameter over time with its one-sigma band and "
+        "quality, held and skipped windows marked, currents and speed below",
+    )  # fmt: skip
+    parser.add_argument(
+        "--png", metavar="OUT.png", default=None, help="write the trend report's figure as PNG"
+    )
+
+
+def _prefix(path: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The first :data:`CHECK_SAMPLES` samples of the file: t (s) and channels (SI)."""
+    from observer.cli import UserError
+    from observer.recording import RecordingError, read_recording
+
+    if not path.lower().endswith(".mcap"):
+        rec = read_recording(path)
+        n = min(rec.n_samples, CHECK_SAMPLES)
+        return rec.t[:n], {c: np.asarray(v[:n]) for c, v in rec.signals.items()}
+    from replay.source import iter_mcap_blocks
+
+    times: list[np.ndarray] = []
+    parts: dict[str, list[np.ndarray]] = {}
+    count = 0
+    blocks = iter_mcap_blocks(path)
+    # The replay itself reports a cut or a bad message; a second time here is noise.
+    quiet = logging.getLogger("replay.source")
+    was_disabled, quiet.disabled = quiet.disabled, True
+    try:
+        for block in blocks:
+            times.append(np.asarray(block.t_ns))
+            for c, v in block.signals.items():
+                parts.setdefault(c, []).append(np.asarray(v))
+            count += len(block.t_ns)
+            if count >= CHECK_SAMPLES:
+                break
+    finally:
+        quiet.disabled = was_disabled
+        close = getattr(blocks, "close", None)
+        if close is not None:
+            close()
+    if count == 0:
+        try:
+            read_recording(path)  # says why: not MCAP, cut before the first block, no topic
+        except RecordingError as exc:
+            raise UserError(str(exc)) from None
+        raise UserError(f"{path}: no sample block can be read (damaged before the first one)")
+    t = np.concatenate(times) / 1e9
+    return t, {c: np.concatenate(v) for c, v in parts.items() if len(v) == len(times)}
+
+
+def _check(path: str, config: Any) -> list[str]:
+    """Warnings about the file's first seconds; a one-line error if it cannot be a motor's."""
+    from observer.commands.display import report_findings
+    from observer.estimation import CIRCUIT_CHANNELS, check_data
+
+    t, signals = _prefix(path)
+    finite = np.isfinite(t)
+    steps = np.diff(t[finite])
+    steps = steps[steps > 0]
+    if steps.size == 0:
+        return []
+    wanted = config.observer.circuits
+    circuits = [
+        c
+        for c in ("field", "armature")
+        if wanted in ("both", c) and all(ch in signals for ch in CIRCUIT_CHANNELS[c])
+    ]
+    clean = {c: np.nan_to_num(v[finite], nan=0.0) for c, v in signals.items()}
+    findings = check_data(clean, float(np.median(steps)), circuits, t=t[finite])
+    # A log may hold gaps and stuck stretches: the observer skips those windows itself.
+    findings = [f for f in findings if f.code not in ("stuck", "too_short")]
+    return report_findings("replay", findings, path=path, units_option=False)
+
+
+class _Tap:
+    """Passes a source's blocks through, showing each to ``on_block`` (for the trend)."""
+
+    def __init__(self, source: Any, on_block: Any) -> None:
+        self.source = source
+        self.on_block = on_block
+
+    def __enter__(self) -> _Tap:
+        self.source.__enter__()
+        return self
+
+    def __exit__(self, *exc: Any) -> Any:
+        return self.source.__exit__(*exc)
+
+    def __iter__(self) -> Any:
+        for block in self.source:
+            self.on_block(block)
+            yield block
 
 
 def main(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from observer.cli import UserError
+    from observer.commands.display import UNITS
+    from observer.commands.outputs import check_outputs, write_bytes, write_text
     from observer.commands.run import format_estimate
+    from observer.commands.trend import Trend, render_html, render_png
     from observer.config import Config, load_config
     from observer.service.daemon import run_offline
     from observer.service.mcaplog import to_json
@@ -35,19 +144,26 @@ def main(args: argparse.Namespace) -> int:
     config = load_config(args.config) if args.config else Config()
     if not Path(args.recording).is_file():
         raise UserError(f"{args.recording}: file not found")
-    source = ReplaySource(ReplayOptions(path=args.recording, speed=0.0, block_s=0.1))
+    check_outputs(("--report", args.report), ("--png", args.png))
+    _check(args.recording, config)
+    source: Any = ReplaySource(ReplayOptions(path=args.recording, speed=0.0, block_s=0.1))
+    trend = Trend()
+    if args.report or args.png:
+        source = _Tap(source, lambda block: trend.add_block(block.t_ns, block.signals))
     bar = tqdm(
         unit="sample", unit_scale=True, disable=args.no_progress, file=sys.stderr,
         desc=Path(args.recording).name,
     )  # fmt: skip
     ids = names(config.observer.drive_id, config.observer.motor_id)
+    units = {k: UNITS[k] for k in ("R", "L", "K", "rms", "rel_std", "t_ns", "window")}
 
     def on_result(result: WindowResult) -> None:
+        trend.add_window(result.t1_ns, result.estimate, result.skip_reason)
         if result.estimate is None:
             return
         estimate = {**ids, **result.estimate}
         if args.json:
-            sys.stdout.write(to_json(estimate).decode() + "\n")
+            sys.stdout.write(to_json({**estimate, "units": units}).decode() + "\n")
         else:
             bar.write(format_estimate(estimate))
 
@@ -57,4 +173,9 @@ def main(args: argparse.Namespace) -> int:
         bar.close()
     summary = observer.health()
     print(json.dumps({"summary": summary["windows"]}), file=sys.stderr)
+    title = f"dcobserver trend of {Path(args.recording).name}"
+    if args.report:
+        write_text(args.report, render_html(trend, title=title, source=args.recording))
+    if args.png:
+        write_bytes(args.png, render_png(trend, title=title))
     return 0

@@ -24,9 +24,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def format_estimate(e: dict[str, Any]) -> str:
-    """One log line per estimate: values with their quality (ok/held/unconfirmed/none)."""
+    """One log line per estimate: values in engineering units with their quality
+    (ok/held/unconfirmed/none), e.g. ``armature: Ra=3.501 ohm (ok), La=20.1 mH (held)``."""
+    from observer.commands.display import NAMES, UNITS, eng
+
     parts = [f"window {e.get('index')} t={e['t_ns'] / 1e9:.2f}s"]
-    units = {"R": "ohm", "L": "H", "K": "H"}
     for circuit in ("field", "armature"):
         c = e.get(circuit)
         if not c:
@@ -34,10 +36,8 @@ def format_estimate(e: dict[str, Any]) -> str:
         items = []
         for p in ("R", "L", "K"):
             if p in c:
-                v = c[p]
                 q = c.get("quality", {}).get(p, "?")
-                text = "-" if v is None else f"{v:.5g}"
-                items.append(f"{p}={text} {units[p]} ({q})")
+                items.append(f"{NAMES[(circuit, p)]}={eng(c[p], UNITS[p])} ({q})")
         parts.append(f"{circuit}: " + ", ".join(items))
     parts.append(f"{e.get('elapsed_ms', 0):.0f} ms")
     return " | ".join(parts)

@@ -60,7 +60,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     parser.add_argument(
         "--mode", choices=("peer", "client"), default="peer",
-        help="client: talk only to the router or daemon connected to; peer: also to other peers",
+        help="Zenoh role: 'peer' talks to daemons directly (and to other peers); 'client' "
+        "only to the router or daemon given by --connect, and fails at once if none answers",
     )  # fmt: skip
     parser.add_argument(
         "--view", choices=("auto", "table", "lines"), default="auto",
@@ -79,6 +80,32 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--timeout", type=float, default=0.0, help="exit after S seconds (0: never)"
     )
+    parser.add_argument(
+        "--warn-after", type=float, default=3.0, metavar="S",
+        help="warn if no daemon or router has answered a --connect endpoint after S seconds",
+    )  # fmt: skip
+
+
+def zenoh_error(exc: BaseException) -> str:
+    """A Zenoh error as one line for users: without the Rust source paths it carries."""
+    import re
+
+    text = " ".join(str(exc).split())
+    text = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", text)
+    return text.strip(" .[]") or type(exc).__name__
+
+
+def check_keyexpr(keyexpr: str, what: str = "KEYEXPR") -> None:
+    """A one-line error for an invalid Zenoh key expression (``a//b``, ``/x``, ``a/**/**``)."""
+    import zenoh
+
+    from observer.cli import UserError
+
+    try:
+        zenoh.KeyExpr(keyexpr)
+    except Exception as exc:  # zenoh.ZError
+        problem = zenoh_error(exc)
+        raise UserError(f"{what} {keyexpr!r} is not a valid key expression: {problem}") from None
 
 
 # ---------------------------------------------------------------------------- formatting
@@ -235,11 +262,14 @@ def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
     from observer.service.zenohconf import session_json
 
+    check_keyexpr(args.keyexpr)
+    if args.count < 0 or args.timeout < 0 or not args.warn_after > 0:
+        raise UserError("--count and --timeout must be >= 0 and --warn-after > 0")
     link = session_link(args)
     try:
         session = zenoh.open(zenoh.Config.from_json5(session_json(link, args.mode)))
-    except Exception as exc:
-        raise UserError(f"cannot open a Zenoh session: {exc}") from None
+    except Exception as exc:  # zenoh.ZError: a bad endpoint, a port in use, no router
+        raise UserError(f"cannot open a Zenoh session: {zenoh_error(exc)}") from None
     if args.latest:
         try:
             return _query_latest(session, args)
@@ -263,8 +293,9 @@ def main(args: argparse.Namespace) -> int:
     if table is None and not args.json:
         print(LINE_HEADER, flush=True)
     received = 0
-    now = time.monotonic()
+    now = started = time.monotonic()
     deadline = now + args.timeout if args.timeout > 0 else None
+    warned = not link.connect
     next_draw = now
     changed = True  # piped: draw only when something arrived (a terminal: every period, for age)
     try:
@@ -272,6 +303,15 @@ def main(args: argparse.Namespace) -> int:
             now = time.monotonic()
             if deadline is not None and now >= deadline:
                 break
+            if not warned and now - started >= args.warn_after:
+                warned = True
+                if not received and not _connected(session):
+                    print(
+                        f"dcobserver subscribe: warning: nothing answers at "
+                        f"{', '.join(link.connect)} after {args.warn_after:g} s (no daemon or "
+                        "router there?); still trying",
+                        file=sys.stderr, flush=True,
+                    )  # fmt: skip
             if table is not None and now >= next_draw and (changed or sys.stdout.isatty()):
                 _draw(sys.stdout, table.render(now), in_place=sys.stdout.isatty())
                 next_draw = now + args.refresh
@@ -303,6 +343,12 @@ def main(args: argparse.Namespace) -> int:
         sub.undeclare()
         session.close()
     return 0
+
+
+def _connected(session: Any) -> bool:
+    """Whether any Zenoh peer or router is connected to this session."""
+    info = session.info
+    return bool(list(info.peers_zid()) or list(info.routers_zid()))
 
 
 def _query_latest(session: Any, args: Any) -> int:

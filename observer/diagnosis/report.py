@@ -22,7 +22,8 @@ from observer.diagnosis.locate import binned_structure
 from observer.diagnosis.results import CURRENT_CHANNEL, Diagnosis, Finding
 
 
-def _png(fig: Any) -> str:
+def figure_png(fig: Any) -> str:
+    """A matplotlib figure as base64 PNG (the figure is closed)."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
     import matplotlib.pyplot as plt
@@ -31,7 +32,8 @@ def _png(fig: Any) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _img(data: str, alt: str) -> str:
+def html_img(data: str, alt: str) -> str:
+    """An inline ``<figure>`` of a base64 PNG with its caption."""
     text = html.escape(alt)
     return (
         f'<figure><img alt="{text}" src="data:image/png;base64,{data}">'
@@ -87,7 +89,7 @@ def _plot_measured(diag: Diagnosis, rec: Any, circuit: str) -> str:
     axes[0].legend(loc="best", fontsize=8)
     axes[1].legend(loc="best", fontsize=8)
     axes[0].set_title(f"{ch}: measured vs simulated, before and after")
-    return _png(fig)
+    return figure_png(fig)
 
 
 def _plot_residual_time(diag: Diagnosis, rec: Any) -> str:
@@ -111,7 +113,7 @@ def _plot_residual_time(diag: Diagnosis, rec: Any) -> str:
         ax.legend(loc="upper right", fontsize=8)
     axes[1].set_xlabel("time (s); shaded: located mismatch")
     axes[0].set_title("residual over time")
-    return _png(fig)
+    return figure_png(fig)
 
 
 def _plot_condition(diag: Diagnosis) -> str | None:
@@ -137,7 +139,7 @@ def _plot_condition(diag: Diagnosis) -> str | None:
     ax.set_ylabel(f"mean {s.channel} residual (A), +-2 sigma of the floor")
     ax.set_title(f"residual vs {words}")
     ax.legend(fontsize=8)
-    return _png(fig)
+    return figure_png(fig)
 
 
 def _plot_extension(diag: Diagnosis, rec: Any, finding: Finding) -> str | None:
@@ -195,10 +197,11 @@ def _plot_extension(diag: Diagnosis, rec: Any, finding: Finding) -> str | None:
         ax.set_title(name)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=7)
-    return _png(fig)
+    return figure_png(fig)
 
 
-def _table(rows: list[list[str]], header: list[str]) -> str:
+def html_table(rows: list[list[str]], header: list[str]) -> str:
+    """An HTML table, every cell escaped."""
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join(
         "<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows
@@ -239,7 +242,7 @@ def render_html(diag: Diagnosis, rec: Any, *, title: str = "dcobserver diagnosis
              _g(diag.baseline_rms[c]), _g(math.sqrt(fl.variance_a2)), f"{fl.excess_ratio:.2f}"]
         )  # fmt: skip
     parts.append(
-        _table(
+        html_table(
             rows,
             ["circuit", "R (ohm)", "L (H)", "K (H)", "rms (A)", "noise floor (A)", "rms/floor"],
         )
@@ -247,7 +250,7 @@ def render_html(diag: Diagnosis, rec: Any, *, title: str = "dcobserver diagnosis
     parts.append("<h2>Located mismatch</h2>")
     if diag.mismatch or diag.structure:
         parts.append(
-            _table(
+            html_table(
                 [
                     [_g(m.t0), _g(m.t1), m.channel, m.conditions, f"{m.z:.0f}"]
                     for m in diag.mismatch
@@ -273,7 +276,7 @@ def render_html(diag: Diagnosis, rec: Any, *, title: str = "dcobserver diagnosis
              f"{100 * ev['holdout_gain']:.2f} %", f"{ev['holdout_lr']:.1f}", f"{ev['ic_gain']:.1f}"]
         )  # fmt: skip
     parts.append(
-        _table(
+        html_table(
             rows,
             [
                 "effect",
@@ -292,7 +295,7 @@ def render_html(diag: Diagnosis, rec: Any, *, title: str = "dcobserver diagnosis
                      f"Adds: <code>{html.escape(best.equation)}</code></p>")  # fmt: skip
         corr = best.corrected
         parts.append(
-            _table(
+            html_table(
                 [
                     [
                         c,
@@ -308,22 +311,25 @@ def render_html(diag: Diagnosis, rec: Any, *, title: str = "dcobserver diagnosis
         )
     parts.append("<h2>Plots</h2>")
     parts.append(
-        _img(_plot_measured(diag, rec, circuit), "measured vs simulated, before and after")
+        html_img(_plot_measured(diag, rec, circuit), "measured vs simulated, before and after")
     )
-    parts.append(_img(_plot_residual_time(diag, rec), "residual over time with located segments"))
+    residual = _plot_residual_time(diag, rec)
+    parts.append(html_img(residual, "residual over time with located segments"))
     cond = _plot_condition(diag)
     if cond:
-        parts.append(_img(cond, "residual vs the exposing operating condition"))
+        parts.append(html_img(cond, "residual vs the exposing operating condition"))
     if diag.findings:
         ext = _plot_extension(diag, rec, diag.findings[0])
         if ext:
-            parts.append(_img(ext, f"fitted extension: {diag.findings[0].effect}"))
+            parts.append(html_img(ext, f"fitted extension: {diag.findings[0].effect}"))
     parts.append("</body></html>")
     return "\n".join(parts)
 
 
 def write_report(diag: Diagnosis, rec: Any, path: str, *, title: str | None = None) -> None:
     """Write :func:`render_html` to ``path``."""
+    from observer.recording import atomic_open
+
     text = render_html(diag, rec, title=title or "dcobserver diagnosis")
-    with open(path, "w", encoding="utf-8") as f:
+    with atomic_open(path, "w") as f:
         f.write(text)

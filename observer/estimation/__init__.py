@@ -9,7 +9,10 @@ recording. They build on the search ranges and signal checks of
 (the paper's PSO is :mod:`~observer.estimation.pso`), the Levenberg-Marquardt
 polish of :mod:`~observer.estimation.polish` and the bounds of
 :mod:`~observer.estimation.uncertainty`; they return a
-:class:`~observer.estimation.result.CircuitEstimate`. The exact discrete winding
+:class:`~observer.estimation.result.CircuitEstimate`. Which of its parameters
+the data identifies is :mod:`~observer.estimation.identifiability`; whether the
+recording and the estimates can be a DC motor's at all (units, signs, swapped
+channels) is :mod:`~observer.estimation.plausibility`. The exact discrete winding
 models and swarm costs are the numba kernels of :mod:`~observer.estimation.kernels`;
 the machine's parameters are :mod:`~observer.estimation.motor`.
 
@@ -31,10 +34,15 @@ if TYPE_CHECKING:
     from observer.estimation.estimate import CIRCUITS as CIRCUITS
     from observer.estimation.estimate import estimate_recording as estimate_recording
     from observer.estimation.field import estimate_field as estimate_field
+    from observer.estimation.identifiability import Identification as Identification
+    from observer.estimation.identifiability import identify as identify
     from observer.estimation.motor import MOTORS as MOTORS
     from observer.estimation.motor import P12 as P12
     from observer.estimation.motor import TRACTION_60V as TRACTION_60V
     from observer.estimation.motor import MotorParameters as MotorParameters
+    from observer.estimation.plausibility import Finding as Finding
+    from observer.estimation.plausibility import check_data as check_data
+    from observer.estimation.plausibility import check_estimates as check_estimates
     from observer.estimation.pso import SCHEDULES as SCHEDULES
     from observer.estimation.pso import ParticleSwarm as ParticleSwarm
     from observer.estimation.pso import PSOResult as PSOResult
@@ -53,6 +61,11 @@ _EXPORTS: dict[str, str] = {
     "CIRCUIT_CHANNELS": "estimate",
     "estimate_recording": "estimate",
     "estimate_field": "field",
+    "Identification": "identifiability",
+    "identify": "identifiability",
+    "Finding": "plausibility",
+    "check_data": "plausibility",
+    "check_estimates": "plausibility",
     "MOTORS": "motor",
     "P12": "motor",
     "TRACTION_60V": "motor",

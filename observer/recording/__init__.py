@@ -6,8 +6,9 @@ by the file name: CSV (:mod:`~observer.recording.csv_format`) or MCAP
 (:mod:`~observer.recording.mcap_reader`, :mod:`~observer.recording.mcap_writer`,
 carrying the compact messages of :mod:`~observer.recording.sample_proto`, or
 the older JSON ones of :mod:`~observer.recording.sample_block`). ADC counts and
-their scales (the ``"adc"`` metadata): :mod:`~observer.recording.adc`. Every
-file written (here and by the commands) appears whole or not at all:
+their scales (the ``"adc"`` metadata): :mod:`~observer.recording.adc`; files in
+other units are converted by :mod:`~observer.recording.units`. Every file
+written (here and by the commands) appears whole or not at all:
 :mod:`~observer.recording.atomic`.
 
 Import rule: this package imports only ``observer.recording`` and
@@ -52,6 +53,7 @@ from observer.recording.sample_proto import (
     proto_schema_data,
     sample_block_proto,
 )
+from observer.recording.units import COLUMN_UNITS, parse_units, to_si
 
 __all__ = [
     "ADC_KEY",
@@ -60,6 +62,7 @@ __all__ = [
     "PROTO_ENCODING",
     "SAMPLE_ENCODINGS",
     "AdcScale",
+    "COLUMN_UNITS",
     "MEANINGS",
     "METADATA_NAME",
     "SAMPLES_SCHEMA_NAME",
@@ -78,11 +81,13 @@ __all__ = [
     "parse_samples",
     "proto_schema_data",
     "quantise",
+    "parse_units",
     "read_csv",
     "read_mcap",
     "read_recording",
     "sample_block_message",
     "sample_block_proto",
+    "to_si",
     "validate_timebase",
     "write_csv",
     "write_mcap",
@@ -103,13 +108,16 @@ def _format_of(path: PathArg) -> str:
     )
 
 
-def read_recording(path: PathArg) -> Recording:
+def read_recording(path: PathArg, *, notes: list[str] | None = None) -> Recording:
     """Read a recording, choosing the format by the file name.
 
     Parameters
     ----------
     path : str or os.PathLike
         A ``.csv``, ``.csv.gz`` or ``.mcap`` file.
+    notes : list, optional
+        Collects what a reader should know (an MCAP file cut short) instead of
+        logging it as a warning.
 
     Raises
     ------
@@ -118,7 +126,7 @@ def read_recording(path: PathArg) -> Recording:
     """
     if _format_of(path) == "csv":
         return read_csv(path)
-    return read_mcap(path)
+    return read_mcap(path, notes=notes)
 
 
 def write_recording(rec: Recording, path: PathArg, *, block_s: float = 0.1) -> None:

@@ -115,7 +115,19 @@ def _parse_metadata_comment(text: str, name: str, line: int) -> dict[str, Any]:
     return metadata
 
 
+_SEPARATORS: Final = {";": "semicolons", "\t": "tabs", "|": "vertical bars"}
+
+
 def _check_csv_header(columns: Sequence[str], name: str, line: int) -> None:
+    if len(columns) == 1:
+        for separator, called in _SEPARATORS.items():
+            if separator in columns[0]:
+                raise RecordingError(
+                    f"the header's fields are separated by {called}, not commas: save the file "
+                    "as comma-separated values (',' between fields, '.' as decimal point)",
+                    path=name,
+                    row=line,
+                )
     if all(columns) and all(_looks_numeric(column) for column in columns):
         raise RecordingError(
             "no header row: the first row holds numbers; expected column names such as t,va,ia",
@@ -168,6 +180,8 @@ def _read_csv_header(stream: IO[str], name: str) -> _CsvHeader:
                 "no header row: the file holds only comments or blank lines", path=name
             )
         line += 1
+        if any(ord(c) < 32 and c not in "\t\r\n" for c in text):
+            raise RecordingError("not a CSV text file: binary data", path=name, row=line)
         stripped = text.strip()
         if not stripped:
             continue
@@ -274,6 +288,43 @@ def _table_problem(table: FloatArray, columns: Sequence[str]) -> _Problem | None
     return _timebase_problem(t, _DEFAULT_REL_TOL)
 
 
+_GZIP_MAGIC: Final = b"\x1f\x8b"
+_MCAP_MAGIC: Final = b"\x89MCAP0\r\n"
+
+
+def _check_content_kind(name: str) -> None:
+    """A file whose bytes are not what its name says: a one-line error saying what it is."""
+    try:
+        with open(name, "rb") as f:
+            head = f.read(len(_MCAP_MAGIC))
+    except OSError:
+        return  # reported, with its reason, when the file is opened to be read
+    if not head:
+        return
+    is_gzip, is_mcap = head.startswith(_GZIP_MAGIC), head.startswith(_MCAP_MAGIC)
+    if is_mcap:
+        raise RecordingError("this is an MCAP file, not CSV: name it .mcap", path=name)
+    if _is_gzip_name(name) and not is_gzip:
+        raise RecordingError(
+            "not gzip-compressed (no gzip header): name it .csv if it is plain text", path=name
+        )
+    if not _is_gzip_name(name) and is_gzip:
+        raise RecordingError("gzip-compressed data: name the file .csv.gz", path=name)
+
+
+def _gzip_corruption(name: str) -> str | None:
+    """Why the gzip stream of ``name`` is corrupt (its CRC, its end), or None if intact."""
+    try:
+        with gzip.open(name, "rb") as f:
+            while f.read(1 << 20):
+                pass
+    except (gzip.BadGzipFile, EOFError, zlib.error) as exc:
+        return str(exc) or type(exc).__name__
+    except OSError:
+        return None  # not the stream's fault (missing, unreadable): reported as such
+    return None
+
+
 def read_csv(path: PathArg) -> Recording:
     """Read a CSV recording (gzip-compressed when the name ends in ``.gz``).
 
@@ -295,6 +346,19 @@ def read_csv(path: PathArg) -> Recording:
         column of the first problem.
     """
     name = os.fspath(path)
+    _check_content_kind(name)
+    try:
+        return _read_csv(name)
+    except RecordingError:
+        # A damaged gzip stream decompresses to garbage before its CRC is reached:
+        # the garbage is not the problem, the file is.
+        corruption = _gzip_corruption(name) if _is_gzip_name(name) else None
+        if corruption is not None:
+            raise RecordingError(f"corrupt gzip file: {corruption}", path=name) from None
+        raise
+
+
+def _read_csv(name: str) -> Recording:
     with _translated_read_errors(name):
         with _open_csv_text(name) as stream:
             header = _read_csv_header(stream, name)

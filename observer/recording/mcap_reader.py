@@ -61,12 +61,17 @@ class _McapContent:
     metadata: list[Metadata] = field(default_factory=list)
     complete: bool = True
     cut_reason: str = ""
+    topics: set[str] = field(default_factory=set)
+    size: int = 0
 
 
 def _scan_mcap_indexed(stream: IO[bytes]) -> _McapContent:
     """Read a finished file through its summary section."""
     reader = make_reader(stream)
     content = _McapContent()
+    summary = reader.get_summary()
+    if summary is not None:
+        content.topics = {c.topic for c in summary.channels.values()}
     for _schema, channel, message in reader.iter_messages(
         topics=[SAMPLES_TOPIC], log_time_order=False
     ):
@@ -114,6 +119,7 @@ def _scan_mcap_streaming(stream: IO[bytes], size: int) -> _McapContent:
     for record in records:
         if isinstance(record, Channel):
             channels[record.id] = record
+            content.topics.add(record.topic)
         elif isinstance(record, Message):
             channel = channels.get(record.channel_id)
             if channel is not None and channel.topic == SAMPLES_TOPIC:
@@ -133,21 +139,41 @@ def _scan_mcap(stream: IO[bytes], name: str) -> _McapContent:
     if size == 0:
         raise RecordingError("file is empty", path=name)
     stream.seek(0)
-    if stream.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
-        raise RecordingError("not an MCAP file (no MCAP magic bytes at the start)", path=name)
+    head = stream.read(len(_MCAP_MAGIC))
+    if head != _MCAP_MAGIC:
+        raise RecordingError(f"not an MCAP file ({_what_it_is(head)})", path=name)
     finished = False
     if size >= 2 * len(_MCAP_MAGIC):
         stream.seek(-len(_MCAP_MAGIC), os.SEEK_END)
         finished = stream.read() == _MCAP_MAGIC
+    content = None
     if finished:
         stream.seek(0)
         try:
-            return _scan_mcap_indexed(stream)
+            content = _scan_mcap_indexed(stream)
         except Exception as exc:
             # A damaged summary or chunk: read what precedes the damage instead.
             _log.debug("%s: indexed MCAP read failed (%s); streaming instead", name, exc)
-    stream.seek(0)
-    return _scan_mcap_streaming(stream, size)
+    if content is None:
+        stream.seek(0)
+        content = _scan_mcap_streaming(stream, size)
+    content.size = size
+    return content
+
+
+def _what_it_is(head: bytes) -> str:
+    """What a file that is not MCAP seems to be, from its first bytes."""
+    if head.startswith(b"\x1f\x8b"):
+        return "it is gzip-compressed: a .csv.gz?"
+    if head.startswith(b"\x89MCAP"):
+        return "an MCAP magic of another version"
+    try:
+        text = head.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        return "no MCAP magic bytes at the start"
+    if text.isprintable() or text.rstrip("\r\n").isprintable():
+        return "it holds text: a CSV file? name it .csv"
+    return "no MCAP magic bytes at the start"
 
 
 def _mcap_metadata(records: Sequence[Metadata], name: str) -> dict[str, Any]:
@@ -175,7 +201,7 @@ def _message_where(index: int, log_time: int) -> str:
     return f"message {index} on {SAMPLES_TOPIC!r} (log time {log_time} ns)"
 
 
-def read_mcap(path: PathArg) -> Recording:
+def read_mcap(path: PathArg, *, notes: list[str] | None = None) -> Recording:
     """Read an MCAP recording.
 
     The messages on :data:`SAMPLES_TOPIC` are concatenated in file order and
@@ -187,6 +213,9 @@ def read_mcap(path: PathArg) -> Recording:
     ----------
     path : str or os.PathLike
         The ``.mcap`` file.
+    notes : list, optional
+        Where to append what a reader should know (the file is cut short)
+        instead of logging it as a warning.
 
     Returns
     -------
@@ -205,18 +234,26 @@ def read_mcap(path: PathArg) -> Recording:
             content = _scan_mcap(stream, name)
     except OSError as exc:
         raise RecordingError(f"cannot read file: {exc.strerror or exc}", path=name) from exc
-    if not content.complete:
-        _log.warning(
-            "%s: MCAP file is unfinished or cut short (%s); using the %d complete sample "
-            "blocks before the cut",
-            name,
-            content.cut_reason,
-            len(content.blocks),
-        )
-    metadata = _mcap_metadata(content.metadata, name)
     if not content.blocks:
-        cut = " before the point where the file is cut" if not content.complete else ""
-        raise RecordingError(f"no messages on topic {SAMPLES_TOPIC!r}{cut}", path=name)
+        if not content.complete:
+            raise RecordingError(
+                f"cut short (or still being written) after {content.size} bytes, before its "
+                f"first complete message on {SAMPLES_TOPIC!r}: nothing to read",
+                path=name,
+            )
+        others = sorted(content.topics - {SAMPLES_TOPIC})
+        found = f"; its topics: {', '.join(others)}" if others else "; it has no topics"
+        raise RecordingError(f"no messages on topic {SAMPLES_TOPIC!r}{found}", path=name)
+    if not content.complete:
+        note = (
+            f"{name}: MCAP file is unfinished or cut short ({content.cut_reason}); using the "
+            f"{len(content.blocks)} complete sample blocks before the cut"
+        )
+        if notes is None:
+            _log.warning("%s", note)
+        else:
+            notes.append(note)
+    metadata = _mcap_metadata(content.metadata, name)
 
     times: list[IntArray] = []
     columns: dict[str, list[FloatArray]] = {}

@@ -47,9 +47,11 @@ def test_estimate_json_contract_and_accuracy(p12_csv):
     res = run("estimate", str(p12_csv), "--json", cwd=p12_csv.parent)
     assert res.returncode == 0, res.stderr
     out = json.loads(res.stdout)
-    assert set(out) == {"field", "armature"}
-    for key in ("R", "L", "rms", "std"):
+    assert set(out) == {"field", "armature", "recording", "limits", "warnings", "units"}
+    for key in ("R", "L", "rms", "std", "quality"):
         assert key in out["field"] and key in out["armature"]
+    assert out["units"]["R"] == "ohm" and out["units"]["kphi"] == "V*s/rad"
+    assert out["warnings"] == []
     assert "K" in out["armature"]
     assert abs(out["field"]["R"] / 185.0 - 1) < 0.01
     assert abs(out["field"]["L"] / 50.0 - 1) < 0.01

@@ -285,10 +285,12 @@ def test_csv_example_message_shape(tmp_path: Path) -> None:
     [
         (lambda data: data[: len(data) // 2], "corrupt gzip file"),
         (lambda data: data[:-4], "corrupt gzip file"),
-        (lambda data: b"this is not gzip at all", "corrupt gzip file"),
+        (lambda data: b"this is not gzip at all", "not gzip-compressed (no gzip header)"),
         (lambda data: data[:40] + bytes([data[40] ^ 0xFF]) + data[41:], "corrupt gzip file"),
+        # Decompresses to garbage rows before the CRC: still the file's fault, not a row's.
+        (lambda data: data[:-300] + bytes([data[-300] ^ 0x10]) + data[-299:], "corrupt gzip"),
     ],
-    ids=["cut-half", "cut-trailer", "not-gzip", "flipped-byte"],
+    ids=["cut-half", "cut-trailer", "not-gzip", "flipped-byte", "flipped-mid-stream"],
 )
 def test_corrupt_gzip(tmp_path: Path, mangle: Any, expected: str) -> None:
     path = tmp_path / "run.csv.gz"

@@ -81,7 +81,7 @@ def test_mcap_any_cut_gives_a_prefix_or_a_clear_error(
             assert str(error).startswith(f"{cut_path}: ")
             assert any(
                 text in str(error)
-                for text in ("file is empty", "not an MCAP file", "no messages on topic")
+                for text in ("file is empty", "not an MCAP file", "nothing to read")
             )
             continue
         n = part.n_samples
@@ -222,7 +222,7 @@ def test_mcap_wrong_encoding_and_bad_metadata(tmp_path: Path) -> None:
         (b"", "file is empty"),
         (b"t,va\n0,1\n1,2\n", "not an MCAP file"),
         (b"\x89MCA", "not an MCAP file"),
-        (b"\x89MCAP0\r\n", "no messages on topic '/samples'"),
+        (b"\x89MCAP0\r\n", "cut short (or still being written) after 8 bytes"),
     ],
 )
 def test_mcap_not_a_recording(tmp_path: Path, content: bytes, expected: str) -> None:
