@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 from typing import Any
 
 log = logging.getLogger(__name__)
@@ -33,7 +32,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
-    from observer.commands.display import eng, report_findings
+    from observer.commands.display import eng, finite_json, report_findings
     from observer.commands.estimate import read_checked
     from observer.commands.outputs import check_outputs, write_text
     from observer.diagnosis.diagnose import diagnose
@@ -66,7 +65,7 @@ def main(args: argparse.Namespace) -> int:
     units = {**JSON_UNITS, "params": {**param_units, **MAGNITUDE_UNITS}}
     result = {**diag.to_dict(), "warnings": warnings, "units": units}
     if args.json:
-        write_text(args.json, json.dumps(_finite(result), indent=1, allow_nan=False) + "\n")
+        write_text(args.json, json.dumps(finite_json(result), indent=1, allow_nan=False) + "\n")
     if args.report:
         from observer.diagnosis.report import render_html
 
@@ -104,16 +103,3 @@ MAGNITUDE_UNITS: dict[str, str] = {
     "flux_loss_at_peak_ia": "1",
     "delay_samples": "samples",
 }
-
-
-def _finite(value: Any) -> Any:
-    """JSON has no NaN/Inf: they become null."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    if hasattr(value, "item"):
-        return _finite(value.item())
-    return value

@@ -21,6 +21,7 @@ UNITS: dict[str, str] = {
     "L": "H",
     "K": "H",
     "kphi": "V*s/rad",
+    "kphi_std": "V*s/rad",
     "tau": "s",
     "rms": "A",
     "i0": "A",
@@ -161,6 +162,19 @@ def print_warnings(command: str, warnings: Iterable[str]) -> None:
     """Each warning as one line on stderr: ``dcobserver CMD: warning: ...``."""
     for text in warnings:
         print(f"dcobserver {command}: warning: {text}", file=sys.stderr, flush=True)
+
+
+def finite_json(value: Any) -> Any:
+    """``value`` ready for strict JSON: NaN and infinities become null (JSON has neither)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): finite_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite_json(v) for v in value]
+    if hasattr(value, "item"):  # numpy scalars
+        return finite_json(value.item())
+    return value
 
 
 def table(rows: Sequence[Sequence[str]], align: str) -> list[str]:

@@ -113,7 +113,7 @@ def circuits_of(rec: Any, requested: str, path: str) -> tuple[str, ...]:
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
-    from observer.commands.display import print_warnings, report_findings
+    from observer.commands.display import finite_json, print_warnings, report_findings
     from observer.config import Config, load_config
     from observer.estimation import (
         EstimationError,
@@ -188,7 +188,7 @@ def main(args: argparse.Namespace) -> int:
                 "recording": {"sample_rate_hz": "Hz", "duration_s": "s"},
             },
         }
-        json.dump(_finite(out), sys.stdout, indent=None, allow_nan=False)
+        json.dump(finite_json(out), sys.stdout, indent=None, allow_nan=False)
         sys.stdout.write("\n")
     else:
         print(_describe(rec, args.recording))
@@ -203,18 +203,7 @@ def _json_units() -> dict[str, str]:
 
     keys = ["R", "L", "K", "kphi", "kphi_std", "tau", "rms", "i0", "if_mean", "std", "rel_std"]
     keys += ["input_noise_var", "search_range"]
-    return {k: UNITS.get(k, UNITS["kphi"]) for k in keys}
-
-
-def _finite(value: Any) -> Any:
-    """JSON has no NaN/Inf: they become null."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    return value
+    return {k: UNITS[k] for k in keys}
 
 
 def _describe(rec: Any, path: str) -> str:
@@ -233,11 +222,11 @@ _TRUTH_KEYS = {
     ("armature", "L"): "armature_inductance_h",
     ("armature", "K"): "emf_constant_h",
 }
-_UNITS = {"R": "ohm", "L": "H", "K": "H"}
 
 
 def _table(report: dict[str, Any], truth: dict[str, Any] | None) -> list[str]:
     from observer.commands.display import NAMES, eng, eng_pair, percent, table
+    from observer.commands.display import UNITS as _UNITS
 
     header = ["circuit", "param", "estimate", "+-1 sigma", "rel std", "quality"]
     if truth:

@@ -12,11 +12,8 @@ example), with a small swarm.
 
 from __future__ import annotations
 
-import contextlib
 import gzip
-import io
 import json
-import logging
 import math
 import os
 import tempfile
@@ -28,10 +25,10 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from observer.cli import main
 from observer.estimation import MOTORS
 from observer.recording import CHANNELS, Recording, write_mcap
 from observer.simulation.simulate import simulate
+from tests.observer.clirun import in_process
 
 SWARM = ("--particles", "6", "--iterations", "3")
 #: More examples, drawn afresh each run: DCOBSERVER_FUZZ_EXAMPLES=2000 python -m pytest FILE
@@ -46,18 +43,8 @@ FUZZ = settings(
 
 def cli(*argv: str) -> tuple[int, str, str]:
     """Run the CLI in this process; any exception but the CLI's own exit is a failure."""
-    out, err = io.StringIO(), io.StringIO()
-    root = logging.getLogger()
-    saved = (root.handlers[:], root.level)
-    try:
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-            try:
-                code = main(list(argv))
-            except SystemExit as exc:  # argparse
-                code = int(exc.code or 0)
-    finally:
-        root.handlers[:], root.level = saved[0], saved[1]
-    return code, out.getvalue(), err.getvalue()
+    res = in_process(*argv)
+    return res.returncode, res.stdout, res.stderr
 
 
 def assert_clean_outcome(code: int, out: str, err: str) -> None:

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from observer.recording import is_temporary, read_recording
+from tests.observer.clirun import in_process as here
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -135,21 +136,21 @@ def test_ctrl_c_during_simulate_leaves_no_partial_file(tmp_path: Path):
 
 def test_outputs_are_checked_before_the_work(tmp_path: Path):
     rec = tmp_path / "r.csv"
-    assert run("simulate", str(rec), "--duration", "2", cwd=tmp_path).returncode == 0
+    assert here("simulate", str(rec), "--duration", "2", cwd=tmp_path).returncode == 0
     a_file = tmp_path / "plain.txt"
     a_file.write_text("")
     for option in ("--report", "--json"):
         target = str(tmp_path / "no-such-folder" / "out.x")
-        res = run("diagnose", str(rec), option, target, cwd=tmp_path)
+        res = here("diagnose", str(rec), option, target, cwd=tmp_path)
         _one_line_error(res, option, "no-such-folder", "cannot write")
         assert "fitting" not in res.stderr  # failed before the work, not after it
-    res = run("diagnose", str(rec), "--json", str(a_file / "x.json"), cwd=tmp_path)
+    res = here("diagnose", str(rec), "--json", str(a_file / "x.json"), cwd=tmp_path)
     _one_line_error(res, "--json", "cannot write")
     same = str(tmp_path / "same")
     _one_line_error(
-        run("diagnose", str(rec), "--json", same, "--report", same, cwd=tmp_path), "same file"
+        here("diagnose", str(rec), "--json", same, "--report", same, cwd=tmp_path), "same file"
     )
-    res = run("simulate", str(tmp_path / "missing" / "x.mcap"), cwd=tmp_path)
+    res = here("simulate", str(tmp_path / "missing" / "x.mcap"), cwd=tmp_path)
     _one_line_error(res, "missing", "cannot write")
-    res = run("simulate", str(tmp_path / "x.txt"), cwd=tmp_path)
+    res = here("simulate", str(tmp_path / "x.txt"), cwd=tmp_path)
     _one_line_error(res, "x.txt", ".csv")

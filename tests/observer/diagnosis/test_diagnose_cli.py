@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -16,9 +15,9 @@ from pathlib import Path
 import pytest
 
 from observer.recording import read_recording
+from tests.observer.browser import CHROMIUM, MISSING, headless
 
 REPO = Path(__file__).resolve().parents[3]
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
 def _cli(*args: str, timeout: float = 180) -> subprocess.CompletedProcess[str]:
@@ -70,18 +69,19 @@ def test_diagnose_writes_the_json_contract(brush_run):
     assert best["evidence"]["accepted"] is True
     # Long fits show progress on stderr.
     assert "fitting" in res.stderr
+    # Units: the baseline's by key, each effect parameter by its name.
+    assert out["units"]["baseline"]["L"] == "H"
+    assert out["units"]["params"]["brush_drop_v"] == "V"
+    assert out["units"]["params"]["flux_deficit_at_peak_if"] == "1"
+    assert out["warnings"] == []
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (apt-get install chromium)")
+@pytest.mark.skipif(CHROMIUM is None, reason=MISSING)
 def test_report_renders_in_a_headless_browser(brush_run, tmp_path):
     d, _ = brush_run
     page = (d / "out.html").read_text()
     assert "http://" not in page and "https://" not in page  # self-contained
-    args = [
-        CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-        "--no-first-run", "--disable-background-networking", "--disable-component-update",
-        "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}",
-    ]  # fmt: skip
+    args = headless(tmp_path / "profile")
     dom = subprocess.run(
         [*args, "--dump-dom", (d / "out.html").as_uri()],
         capture_output=True, text=True, timeout=120,

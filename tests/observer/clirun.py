@@ -1,0 +1,36 @@
+"""The CLI run in the test's own process: tens of milliseconds where a subprocess takes seconds.
+
+For what does not need a process of its own (signals, Zenoh sessions, what Python prints
+at exit); the result looks like :class:`subprocess.CompletedProcess`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import os
+import subprocess
+from pathlib import Path
+
+from observer.cli import main
+
+
+def in_process(*argv: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    """``dcobserver ARGV`` in this process; any exception but the CLI's own exit propagates."""
+    out, err = io.StringIO(), io.StringIO()
+    root = logging.getLogger()
+    saved = (root.handlers[:], root.level)
+    here = os.getcwd()
+    try:
+        if cwd is not None:
+            os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = main(list(argv))
+            except SystemExit as exc:  # argparse: --help, usage errors
+                code = int(exc.code or 0)
+    finally:
+        os.chdir(here)
+        root.handlers[:], root.level = saved[0], saved[1]
+    return subprocess.CompletedProcess(list(argv), code, out.getvalue(), err.getvalue())
