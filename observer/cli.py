@@ -19,6 +19,7 @@ import logging
 import signal
 import sys
 import threading
+import warnings
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
@@ -157,7 +158,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     module = importlib.import_module(args._module)
     previous = _terminate_like_interrupt()
     try:
-        return int(module.main(args) or 0)
+        with warnings.catch_warnings():
+            if args.verbose < 2 and not sys.warnoptions:
+                # NaN and overflow on the way are handled (a parameter the data does not
+                # identify is flagged, an impossible input is an error): numpy's notes
+                # about them are for -vv, not for the user.
+                warnings.simplefilter("ignore", RuntimeWarning)
+            return int(module.main(args) or 0)
     except _user_error_types() as exc:
         print(f"dcobserver {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

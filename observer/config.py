@@ -503,6 +503,10 @@ def _endpoint(x: str) -> str | None:
     protocol, _, address = x.partition("/")
     if protocol not in ("tcp", "tls", "udp", "quic", "unixsock-stream") or not address:
         return f"{x!r} is not an endpoint like 'tcp/HOST:PORT' or 'tls/HOST:PORT'"
+    if protocol != "unixsock-stream":
+        port = address.split("#", 1)[0].rpartition(":")[2]
+        if not port.isdigit() or int(port) > 65535:
+            return f"{x!r}: the port must be a number 0-65535 ('{protocol}/HOST:PORT')"
     return None
 
 

@@ -143,15 +143,15 @@ def main(args: argparse.Namespace) -> int:
     signals = dict(rec.signals)
     findings = check_data(signals, rec.dt, circuits, t=rec.t)
     warnings += report_findings("estimate", findings, path=args.recording, defer=True)
+    chain = config.chain if args.config else None
     try:
-        chain = config.chain if args.config else None
         results = estimate_recording(rec, circuits, settings, path=args.recording, chain=chain)
     except EstimationError as exc:
         # A warning often says why (a stuck sensor, a scaling): keep it on the one line.
         raise EstimationError(f"{exc} (after: {warnings[0]})" if warnings else str(exc)) from None
-    q = config.observer.quality
-    limits = {"R": q.R, "L": q.L, "K": q.K}
-    idents = {c: identify(est, limits) for c, est in results.items()}
+    quality = config.observer.quality
+    limits = {c: quality.limits(c) for c in results}
+    idents = {c: identify(est, limits[c]) for c, est in results.items()}
     later = check_estimates(results, idents, signals)
     warnings += report_findings("estimate", later, path=args.recording, defer=True)
     print_warnings("estimate", warnings)
@@ -263,7 +263,9 @@ def _table(report: dict[str, Any], truth: dict[str, Any] | None) -> list[str]:
     return table(rows, "<<>>><" + ("><" if truth else ""))
 
 
-def _notes(report: dict[str, Any], limits: Mapping[str, float], warnings: list[str]) -> list[str]:
+def _notes(
+    report: dict[str, Any], limits: Mapping[str, Mapping[str, float]], warnings: list[str]
+) -> list[str]:
     from observer.commands.display import K_EXPLAINED, NAMES, eng
 
     lines = []
@@ -272,7 +274,9 @@ def _notes(report: dict[str, Any], limits: Mapping[str, float], warnings: list[s
         for c, values in report.items()
         for p, reason in values["not_identified"].items()
     ]
-    limit_text = ", ".join(f"{p} {100 * v:g} %" for p, v in limits.items())
+    limit_text = ", ".join(
+        f"{NAMES[(c, p)]} {100 * v:g} %" for c, lim in limits.items() for p, v in lim.items()
+    )
     if missing:
         lines.append(
             "not identified by this recording (quality none; do not use these values): "

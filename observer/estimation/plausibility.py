@@ -65,6 +65,8 @@ FIELD_RESISTANCE_OHM: Final = (0.1, 1e4)
 ARMATURE_RESISTANCE_OHM: Final = (1e-4, 1e3)
 FIELD_TAU_S: Final = (5e-3, 30.0)
 ARMATURE_TAU_S: Final = (1e-5, 0.5)
+#: Largest relative std of L at which a time constant outside these spans is reported.
+TAU_KNOWN: Final = 0.25
 POWER_RATIO: Final = (1e-3, 100.0)
 LF_OVER_K: Final = (1.0, 2000.0)
 MAX_RESIDUAL_SHARE: Final = 0.1
@@ -427,22 +429,25 @@ def _resistance_finding(est: CircuitEstimate) -> Finding | None:
 
 
 def _tau_finding(est: CircuitEstimate, ident: Identification) -> Finding | None:
-    if not ident.identified.get("L", False):
-        return None
+    # A time constant known to within a quarter is enough to see that no motor has it,
+    # even where it is too uncertain to be reported as identified.
+    rel = est.relative_std("L")
+    known = ident.identified.get("L", False) or (est.describes_window and rel <= TAU_KNOWN)
     tau = est.time_constant_s
-    if not math.isfinite(tau):
+    if not known or not math.isfinite(tau):
         return None
     lo, hi = FIELD_TAU_S if est.circuit == "field" else ARMATURE_TAU_S
     what = "a field winding" if est.circuit == "field" else "an armature"
     span = f"{_si(lo, 's')} - {_si(hi, 's')}"
-    if tau > hi:
+    margin = 1.0 + 2.0 * (rel if math.isfinite(rel) else 0.0)
+    if tau / margin > hi:
         return Finding(
             "warning", "time_constant",
             f"{est.circuit} time constant {_si(tau, 's')} is longer than {what} has "
             f"({span}): is t in milliseconds, or are field and armature channels swapped?",
             "t", {"t": "ms"}, (est.circuit,),
         )  # fmt: skip
-    if tau < lo:
+    if tau * margin < lo:
         return Finding(
             "warning", "time_constant",
             f"{est.circuit} time constant {_si(tau, 's')} is shorter than {what} has "

@@ -12,7 +12,8 @@ from observer.config import QualityConfig
 from observer.estimation import CircuitEstimate, SearchRange, identify
 from observer.estimation.pso import PSOResult
 
-LIMITS = {"R": QualityConfig().R, "L": QualityConfig().L, "K": QualityConfig().K}
+LIMITS = QualityConfig().limits("armature")
+FIELD_LIMITS = QualityConfig().limits("field")
 
 
 def _estimate(circuit: str = "armature", **changes: object) -> CircuitEstimate:
@@ -20,8 +21,8 @@ def _estimate(circuit: str = "armature", **changes: object) -> CircuitEstimate:
     base = CircuitEstimate(
         circuit=circuit, resistance_ohm=3.5, inductance_h=0.02,
         emf_constant_h=1.12 if circuit == "armature" else None, initial_current_a=0.0,
-        rms_a=0.01, std={"R": 0.001, "L": 0.0005, "K": 0.0001} if circuit == "armature"
-        else {"R": 0.01, "L": 0.0005}, n_samples=1000,
+        rms_a=0.01, std={"R": 0.001, "L": 0.0002, "K": 0.0001} if circuit == "armature"
+        else {"R": 0.01, "L": 0.00005}, n_samples=1000,
         search_range=SearchRange((1.0, 10.0), (1e-3, 1.0)), pso=pso,
     )  # fmt: skip
     return dataclasses.replace(base, **changes)  # type: ignore[arg-type]
@@ -36,7 +37,7 @@ def test_a_well_determined_estimate_is_identified():
 def test_a_large_relative_std_is_not_identified_and_says_why():
     ident = identify(_estimate(std={"R": 0.001, "L": 0.5, "K": 0.0001}), LIMITS)
     assert ident.quality() == {"R": "ok", "L": "none", "K": "ok"}
-    assert "relative std" in ident.reasons["L"] and "> 10 %" in ident.reasons["L"]
+    assert "relative std" in ident.reasons["L"] and "> 2 %" in ident.reasons["L"]
 
 
 def test_an_estimate_whose_model_does_not_describe_the_window_is_no_evidence():
@@ -48,18 +49,18 @@ def test_an_estimate_whose_model_does_not_describe_the_window_is_no_evidence():
 
 
 def test_armature_r_and_k_are_identified_together():
-    ident = identify(_estimate(std={"R": 0.001, "L": 0.0005, "K": 0.1}), LIMITS)
+    ident = identify(_estimate(std={"R": 0.001, "L": 0.0002, "K": 0.1}), LIMITS)
     assert ident.quality() == {"R": "none", "L": "ok", "K": "none"}
     assert "together with K" in ident.reasons["R"]
 
 
 @pytest.mark.parametrize("std", [math.inf, math.nan])
 def test_infinite_or_nan_std_is_not_identified(std: float):
-    ident = identify(_estimate("field", std={"R": std, "L": 0.0005}), LIMITS)
+    ident = identify(_estimate("field", std={"R": std, "L": 0.00005}), FIELD_LIMITS)
     assert ident.quality() == {"R": "none", "L": "ok"}
 
 
 def test_the_limits_are_the_callers():
-    est = _estimate(std={"R": 0.07, "L": 0.0005, "K": 0.0001})  # 2 % on R
+    est = _estimate(std={"R": 0.07, "L": 0.0002, "K": 0.0001})  # 2 % on R
     assert identify(est, LIMITS).quality()["R"] == "none"
     assert identify(est, {**LIMITS, "R": 0.05}).quality()["R"] == "ok"

@@ -20,7 +20,7 @@ from observer.estimation.plausibility import white_noise_std
 from observer.simulation.simulate import simulate
 
 BOTH = ("field", "armature")
-LIMITS = {"R": QualityConfig().R, "L": QualityConfig().L, "K": QualityConfig().K}
+LIMITS = {c: QualityConfig().limits(c) for c in BOTH}
 
 
 @pytest.fixture(scope="module")
@@ -134,7 +134,7 @@ def test_swapped_field_and_armature_currents_leave_a_large_residual(p12):
     t, s, dt = p12
     swapped = {**s, "ia": s["if"], "if": s["ia"]}
     res = estimate_recording(_rec(t, swapped), BOTH)
-    idents = {c: identify(e, LIMITS) for c, e in res.items()}
+    idents = {c: identify(e, LIMITS[c]) for c, e in res.items()}
     findings = check_estimates(res, idents, swapped)
     assert any(f.code == "fit" and f.circuits == ("field",) for f in findings), findings
     # ... and nothing it says is taken as identified.
@@ -145,7 +145,7 @@ def test_an_armature_time_constant_of_seconds_points_at_the_time_unit(p12):
     t, s, dt = p12
     slow = _rec(t * 100, s)  # t in units of 10 ms: tau_a 0.6 s, 20 Hz
     res = estimate_recording(slow, ("armature",))
-    idents = {c: identify(e, LIMITS) for c, e in res.items()}
+    idents = {c: identify(e, LIMITS[c]) for c, e in res.items()}
     findings = check_estimates(res, idents, s)
     tau = [f for f in findings if f.code == "time_constant"]
     assert tau and dict(tau[0].suggest) == {"t": "ms"} and "armature" in tau[0].text
@@ -154,7 +154,7 @@ def test_an_armature_time_constant_of_seconds_points_at_the_time_unit(p12):
 def test_a_correct_recording_gives_no_estimate_warning(p12):
     t, s, dt = p12
     res = estimate_recording(_rec(t, s), BOTH)
-    idents = {c: identify(e, LIMITS) for c, e in res.items()}
+    idents = {c: identify(e, LIMITS[c]) for c, e in res.items()}
     assert check_estimates(res, idents, s) == []
 
 
