@@ -105,7 +105,7 @@ def segment_noise_energy(a: float, c0: float, m: int) -> float:
 
 
 @njit(nogil=True, cache=True, fastmath={"contract"})
-def moment_swarm_costs(
+def plain_moment_swarm_costs(
     positions: np.ndarray,
     mu: np.ndarray,
     mu_emf: np.ndarray,
@@ -118,7 +118,12 @@ def moment_swarm_costs(
     emf_constant: float,
     input_noise_var: float,
 ) -> np.ndarray:
-    """Eq. (1) for every particle, over segments, ``K`` and each segment's ``i0`` projected out.
+    """The reference form of :func:`moment_swarm_costs`: the same cost, written plainly.
+
+    The loops run as the equations read (samples outside, particles inside,
+    every state in memory); the fast kernel must agree with it to rounding
+    (``tests/observer/estimation/test_intersample_kernels.py``) and the
+    benchmark measures both (``python -m bench.kernel_speed``).
 
     Parameters
     ----------
@@ -242,6 +247,435 @@ def moment_swarm_costs(
                 big_c[p] += s_ee[p] - s_eg[p] * s_eg[p] / s_gg
             if input_noise_var > 0.0:
                 noise[p] += segment_noise_energy(a[p], c0[p], m_seg)
+    out = np.empty(n_particles)
+    for p in range(n_particles):
+        cost = big_a[p]
+        if fit_k and big_c[p] > _SINGULAR_RTOL * abs(big_a[p]) + 1e-300:
+            cost -= big_b[p] * big_b[p] / big_c[p]
+        out[p] = cost - input_noise_var * noise[p]
+    return out
+
+
+# ---------------------------------------------------------------- the fast swarm cost
+
+#: Particles are processed in whole AVX2 vectors of doubles: the swarm is padded
+#: to a multiple of this (the padding repeats the last particle).
+LANES = 4
+
+#: Rows of the particle-major work array of :func:`moment_swarm_costs`: the
+#: states and sums one particle carries along a segment, then its constants.
+#: ``h = f/c_0`` and ``h_e = f_e/c_0`` are the forced responses scaled so that a
+#: held input enters without a product; ``r_j = c_j/c_0``.
+_H, _HE, _G, _SDD, _SDG, _SDE, _SEE, _SEG, _A, _C0, _AG, _R1, _R2 = range(13)
+_ROWS = 13
+
+#: FMAs per particle and sample of the inner loops: (fit K?, moments) -> count.
+#: Field or K held: d, s_dd, s_dg, h, g (+2 for the moments' input); K fitted:
+#: also h_e, s_de, s_ee, s_eg (+2 more for its moments).
+FMAS_PER_PARTICLE_SAMPLE = {(False, 1): 5, (False, 3): 7, (True, 1): 9, (True, 3): 13}
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def _moment(mu: np.ndarray, mu_emf: np.ndarray, held: bool, k_held: float, k: int, j: int) -> float:
+    """Moment ``j`` of interval ``k`` of the winding voltage, less ``K*`` EMF when ``K`` is held."""
+    if held:
+        return mu[k, j] - k_held * mu_emf[k, j]
+    return mu[k, j]
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def _plain_hold(
+    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, held: bool,
+    k_held: float, st: int, en: int,
+) -> int:  # fmt: skip
+    """Intervals of a segment in fours, held input, no fitted ``K``: the next interval left.
+
+    Each particle's state is loaded and stored once per four samples, so the
+    loop is bound by its FMAs, not by memory (one pass per sample is bound by
+    the stores, at about half the speed).
+    """
+    width = w.shape[1]
+    k = st
+    while k + 4 <= en:
+        y0, y1, y2, y3 = y[k], y[k + 1], y[k + 2], y[k + 3]
+        u0 = _moment(mu, mu_emf, held, k_held, k, 0)
+        u1 = _moment(mu, mu_emf, held, k_held, k + 1, 0)
+        u2 = _moment(mu, mu_emf, held, k_held, k + 2, 0)
+        u3 = _moment(mu, mu_emf, held, k_held, k + 3, 0)
+        for j in range(width):
+            h = w[_H, j]
+            g = w[_G, j]
+            s = w[_SDD, j]
+            t = w[_SDG, j]
+            a = w[_A, j]
+            c = w[_C0, j]
+            ag = w[_AG, j]
+            d = y0 - c * h
+            s += d * d
+            t += d * g
+            h = a * h + u0
+            g = ag * g + _G_FLOOR
+            d = y1 - c * h
+            s += d * d
+            t += d * g
+            h = a * h + u1
+            g = ag * g + _G_FLOOR
+            d = y2 - c * h
+            s += d * d
+            t += d * g
+            h = a * h + u2
+            g = ag * g + _G_FLOOR
+            d = y3 - c * h
+            w[_SDD, j] = s + d * d
+            w[_SDG, j] = t + d * g
+            w[_H, j] = a * h + u3
+            w[_G, j] = ag * g + _G_FLOOR
+        k += 4
+    return k
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def _plain_moments(
+    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, held: bool,
+    k_held: float, st: int, en: int,
+) -> int:  # fmt: skip
+    """:func:`_plain_hold` with three moments per interval."""
+    width = w.shape[1]
+    k = st
+    while k + 4 <= en:
+        y0, y1, y2, y3 = y[k], y[k + 1], y[k + 2], y[k + 3]
+        p0 = _moment(mu, mu_emf, held, k_held, k, 0)
+        q0 = _moment(mu, mu_emf, held, k_held, k, 1)
+        z0 = _moment(mu, mu_emf, held, k_held, k, 2)
+        p1 = _moment(mu, mu_emf, held, k_held, k + 1, 0)
+        q1 = _moment(mu, mu_emf, held, k_held, k + 1, 1)
+        z1 = _moment(mu, mu_emf, held, k_held, k + 1, 2)
+        p2 = _moment(mu, mu_emf, held, k_held, k + 2, 0)
+        q2 = _moment(mu, mu_emf, held, k_held, k + 2, 1)
+        z2 = _moment(mu, mu_emf, held, k_held, k + 2, 2)
+        p3 = _moment(mu, mu_emf, held, k_held, k + 3, 0)
+        q3 = _moment(mu, mu_emf, held, k_held, k + 3, 1)
+        z3 = _moment(mu, mu_emf, held, k_held, k + 3, 2)
+        for j in range(width):
+            h = w[_H, j]
+            g = w[_G, j]
+            s = w[_SDD, j]
+            t = w[_SDG, j]
+            a = w[_A, j]
+            c = w[_C0, j]
+            ag = w[_AG, j]
+            r1 = w[_R1, j]
+            r2 = w[_R2, j]
+            d = y0 - c * h
+            s += d * d
+            t += d * g
+            h = a * h + (p0 + r1 * q0 + r2 * z0)
+            g = ag * g + _G_FLOOR
+            d = y1 - c * h
+            s += d * d
+            t += d * g
+            h = a * h + (p1 + r1 * q1 + r2 * z1)
+            g = ag * g + _G_FLOOR
+            d = y2 - c * h
+            s += d * d
+            t += d * g
+            h = a * h + (p2 + r1 * q2 + r2 * z2)
+            g = ag * g + _G_FLOOR
+            d = y3 - c * h
+            w[_SDD, j] = s + d * d
+            w[_SDG, j] = t + d * g
+            w[_H, j] = a * h + (p3 + r1 * q3 + r2 * z3)
+            w[_G, j] = ag * g + _G_FLOOR
+        k += 4
+    return k
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def _plain_tail(
+    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, held: bool,
+    k_held: float, k0: int, en: int,
+) -> None:  # fmt: skip
+    """Intervals ``k0 .. en-1`` one at a time, then the segment's last sample ``en``."""
+    width = w.shape[1]
+    for k in range(k0, en):
+        yk = y[k]
+        p = _moment(mu, mu_emf, held, k_held, k, 0)
+        q = _moment(mu, mu_emf, held, k_held, k, 1)
+        z = _moment(mu, mu_emf, held, k_held, k, 2)
+        for j in range(width):
+            h = w[_H, j]
+            g = w[_G, j]
+            d = yk - w[_C0, j] * h
+            w[_SDD, j] += d * d
+            w[_SDG, j] += d * g
+            w[_H, j] = w[_A, j] * h + (p + w[_R1, j] * q + w[_R2, j] * z)
+            w[_G, j] = w[_AG, j] * g + _G_FLOOR
+    yk = y[en]
+    for j in range(width):
+        d = yk - w[_C0, j] * w[_H, j]
+        w[_SDD, j] += d * d
+        w[_SDG, j] += d * w[_G, j]
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def _fit_hold(
+    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
+) -> int:
+    """Intervals of a segment in fours, held input, ``K`` fitted: the next interval left."""
+    width = w.shape[1]
+    k = st
+    while k + 4 <= en:
+        y0, y1, y2, y3 = y[k], y[k + 1], y[k + 2], y[k + 3]
+        u0, u1, u2, u3 = mu[k, 0], mu[k + 1, 0], mu[k + 2, 0], mu[k + 3, 0]
+        e0, e1, e2, e3 = mu_emf[k, 0], mu_emf[k + 1, 0], mu_emf[k + 2, 0], mu_emf[k + 3, 0]
+        for j in range(width):
+            h = w[_H, j]
+            he = w[_HE, j]
+            g = w[_G, j]
+            sdd = w[_SDD, j]
+            sdg = w[_SDG, j]
+            sde = w[_SDE, j]
+            see = w[_SEE, j]
+            seg = w[_SEG, j]
+            a = w[_A, j]
+            c = w[_C0, j]
+            ag = w[_AG, j]
+            d = y0 - c * h
+            sdd += d * d
+            sdg += d * g
+            sde += d * he
+            see += he * he
+            seg += he * g
+            h = a * h + u0
+            he = a * he + e0
+            g = ag * g + _G_FLOOR
+            d = y1 - c * h
+            sdd += d * d
+            sdg += d * g
+            sde += d * he
+            see += he * he
+            seg += he * g
+            h = a * h + u1
+            he = a * he + e1
+            g = ag * g + _G_FLOOR
+            d = y2 - c * h
+            sdd += d * d
+            sdg += d * g
+            sde += d * he
+            see += he * he
+            seg += he * g
+            h = a * h + u2
+            he = a * he + e2
+            g = ag * g + _G_FLOOR
+            d = y3 - c * h
+            w[_SDD, j] = sdd + d * d
+            w[_SDG, j] = sdg + d * g
+            w[_SDE, j] = sde + d * he
+            w[_SEE, j] = see + he * he
+            w[_SEG, j] = seg + he * g
+            w[_H, j] = a * h + u3
+            w[_HE, j] = a * he + e3
+            w[_G, j] = ag * g + _G_FLOOR
+        k += 4
+    return k
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def _fit_moments(
+    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
+) -> int:
+    """:func:`_fit_hold` with three moments per interval, two samples per pass."""
+    width = w.shape[1]
+    k = st
+    while k + 2 <= en:
+        y0, y1 = y[k], y[k + 1]
+        p0, q0, z0 = mu[k, 0], mu[k, 1], mu[k, 2]
+        p1, q1, z1 = mu[k + 1, 0], mu[k + 1, 1], mu[k + 1, 2]
+        pe0, qe0, ze0 = mu_emf[k, 0], mu_emf[k, 1], mu_emf[k, 2]
+        pe1, qe1, ze1 = mu_emf[k + 1, 0], mu_emf[k + 1, 1], mu_emf[k + 1, 2]
+        for j in range(width):
+            h = w[_H, j]
+            he = w[_HE, j]
+            g = w[_G, j]
+            a = w[_A, j]
+            c = w[_C0, j]
+            ag = w[_AG, j]
+            r1 = w[_R1, j]
+            r2 = w[_R2, j]
+            d = y0 - c * h
+            sdd = w[_SDD, j] + d * d
+            sdg = w[_SDG, j] + d * g
+            sde = w[_SDE, j] + d * he
+            see = w[_SEE, j] + he * he
+            seg = w[_SEG, j] + he * g
+            h = a * h + (p0 + r1 * q0 + r2 * z0)
+            he = a * he + (pe0 + r1 * qe0 + r2 * ze0)
+            g = ag * g + _G_FLOOR
+            d = y1 - c * h
+            w[_SDD, j] = sdd + d * d
+            w[_SDG, j] = sdg + d * g
+            w[_SDE, j] = sde + d * he
+            w[_SEE, j] = see + he * he
+            w[_SEG, j] = seg + he * g
+            w[_H, j] = a * h + (p1 + r1 * q1 + r2 * z1)
+            w[_HE, j] = a * he + (pe1 + r1 * qe1 + r2 * ze1)
+            w[_G, j] = ag * g + _G_FLOOR
+        k += 2
+    return k
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def _fit_tail(
+    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, k0: int, en: int
+) -> None:
+    """Intervals ``k0 .. en-1`` one at a time (``K`` fitted), then the last sample ``en``."""
+    width = w.shape[1]
+    for k in range(k0, en):
+        yk = y[k]
+        p, q, z = mu[k, 0], mu[k, 1], mu[k, 2]
+        pe, qe, ze = mu_emf[k, 0], mu_emf[k, 1], mu_emf[k, 2]
+        for j in range(width):
+            h = w[_H, j]
+            he = w[_HE, j]
+            g = w[_G, j]
+            d = yk - w[_C0, j] * h
+            w[_SDD, j] += d * d
+            w[_SDG, j] += d * g
+            w[_SDE, j] += d * he
+            w[_SEE, j] += he * he
+            w[_SEG, j] += he * g
+            r1 = w[_R1, j]
+            r2 = w[_R2, j]
+            w[_H, j] = w[_A, j] * h + (p + r1 * q + r2 * z)
+            w[_HE, j] = w[_A, j] * he + (pe + r1 * qe + r2 * ze)
+            w[_G, j] = w[_AG, j] * g + _G_FLOOR
+    yk = y[en]
+    for j in range(width):
+        he = w[_HE, j]
+        g = w[_G, j]
+        d = yk - w[_C0, j] * w[_H, j]
+        w[_SDD, j] += d * d
+        w[_SDG, j] += d * g
+        w[_SDE, j] += d * he
+        w[_SEE, j] += he * he
+        w[_SEG, j] += he * g
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def moment_swarm_costs(
+    positions: np.ndarray,
+    mu: np.ndarray,
+    mu_emf: np.ndarray,
+    current: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    dt: float,
+    log_scale: bool,
+    emf_mode: int,
+    emf_constant: float,
+    input_noise_var: float,
+    n_moments: int = 3,
+) -> np.ndarray:
+    """Eq. (1) for every particle, over segments, ``K`` and each segment's ``i0`` projected out.
+
+    Parameters
+    ----------
+    positions : (n_particles, 2) array
+        ``(R [ohm], L [H])`` per particle, or their base-10 logarithms.
+    mu, mu_emf : (n - 1, 3) arrays
+        Legendre moments of the winding voltage (V) and of ``if*omega``
+        (A*rad/s) over each interval; ``mu_emf`` is ignored when
+        ``emf_mode == EMF_NONE``.
+    current : (n,) array
+        Measured winding current (A).
+    starts, ends : (n_segments,) int arrays
+        First and last sample of each segment (inclusive; intervals between
+        segments are skipped).
+    emf_mode : {EMF_NONE, EMF_FIT, EMF_HELD}
+    emf_constant : float
+        ``K`` when ``emf_mode == EMF_HELD``.
+    input_noise_var : float
+        Variance (V^2) of white noise on the voltage whose expected share of
+        the cost is subtracted (errors-in-variables compensation).
+    n_moments : {3, 1}
+        1: the voltage is held over each interval (only ``mu[:, 0]`` and
+        ``mu_emf[:, 0]`` are read; the others must be 0), which saves two or
+        four FMAs per particle and sample.
+
+    Returns
+    -------
+    (n_particles,) array of sums of squared current error (A^2).
+
+    Notes
+    -----
+    The same cost as :func:`plain_moment_swarm_costs`, to rounding. The swarm
+    is laid out particle-major in one work array, padded to whole vectors of
+    :data:`LANES` doubles, so the particle loop vectorises without remainder
+    or aliasing checks, and the samples are taken four (two) at a time so a
+    particle's state stays in registers between its loads and stores. The
+    forced responses are kept divided by ``c_0``, which saves a product per
+    sample. ``python -m bench.kernel_speed`` measures it against the FMA peak.
+    """
+    n_particles = positions.shape[0]
+    width = ((n_particles + LANES - 1) // LANES) * LANES
+    w = np.empty((_ROWS, width))
+    for j in range(width):
+        p = min(j, n_particles - 1)
+        r = positions[p, 0]
+        ell = positions[p, 1]
+        if log_scale:
+            r = 10.0**r
+            ell = 10.0**ell
+        a, c0, c1, c2 = moment_coefficients(r, ell, dt)
+        w[_A, j] = a
+        w[_C0, j] = c0
+        w[_AG, j] = max(a, _A_FLOOR)
+        w[_R1, j] = c1 / c0
+        w[_R2, j] = c2 / c0
+    fit_k = emf_mode == EMF_FIT
+    held = emf_mode == EMF_HELD
+    k_held = emf_constant if held else 0.0
+    big_a = np.zeros(width)
+    big_b = np.zeros(width)
+    big_c = np.zeros(width)
+    noise = np.zeros(width)
+    for s in range(starts.shape[0]):
+        st = starts[s]
+        en = ends[s]
+        for j in range(width):
+            w[_H, j] = 0.0
+            w[_HE, j] = 0.0
+            w[_G, j] = 1.0
+            w[_SDD, j] = 0.0
+            w[_SDG, j] = 0.0
+            w[_SDE, j] = 0.0
+            w[_SEE, j] = 0.0
+            w[_SEG, j] = 0.0
+        if fit_k:
+            if n_moments == 1:
+                k = _fit_hold(w, current, mu, mu_emf, st, en)
+            else:
+                k = _fit_moments(w, current, mu, mu_emf, st, en)
+            _fit_tail(w, current, mu, mu_emf, k, en)
+        else:
+            if n_moments == 1:
+                k = _plain_hold(w, current, mu, mu_emf, held, k_held, st, en)
+            else:
+                k = _plain_moments(w, current, mu, mu_emf, held, k_held, st, en)
+            _plain_tail(w, current, mu, mu_emf, held, k_held, k, en)
+        m_seg = en - st + 1
+        for j in range(width):
+            a = w[_A, j]
+            c0 = w[_C0, j]
+            s_gg = geometric_energy(a, m_seg)
+            s_dg = w[_SDG, j]
+            big_a[j] += w[_SDD, j] - s_dg * s_dg / s_gg
+            if fit_k:
+                s_eg = c0 * w[_SEG, j]
+                big_b[j] += c0 * w[_SDE, j] - s_dg * s_eg / s_gg
+                big_c[j] += c0 * c0 * w[_SEE, j] - s_eg * s_eg / s_gg
+            if input_noise_var > 0.0:
+                noise[j] += segment_noise_energy(a, c0, m_seg)
     out = np.empty(n_particles)
     for p in range(n_particles):
         cost = big_a[p]

@@ -133,11 +133,13 @@ class WindingProblem:
         seg = self.inp.segments
         k_arg = 0.0 if self.emf_constant is None else float(self.emf_constant)
         mode = self.emf_mode
+        # Held inputs (zero higher moments) take the kernel's cheaper loop; decided once here.
+        moments = 3 if mu[:, 1:].any() or (mode != ik.EMF_NONE and mu_emf[:, 1:].any()) else 1
 
         def cost(x: np.ndarray) -> np.ndarray:
             return ik.moment_swarm_costs(
                 x, mu, mu_emf, self.current, seg.starts, seg.ends, self.dt, True,
-                mode, k_arg, input_noise_var,
+                mode, k_arg, input_noise_var, moments,
             )  # fmt: skip
 
         return cost

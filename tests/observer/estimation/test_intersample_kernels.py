@@ -113,3 +113,35 @@ def test_coefficients_are_continuous_where_the_series_takes_over():
         w = np.exp(-x * (1 - u))
         for c, j, leg in ((c0, 0, 1.0), (c1, 1, 2 * u - 1), (c2, 2, 6 * u**2 - 6 * u + 1)):
             assert c == pytest.approx(x * (2 * j + 1) * np.trapezoid(w * leg, u), rel=1e-6)
+
+
+@pytest.mark.parametrize("n_particles", [1, 3, 4, 5, 23])
+@pytest.mark.parametrize("mode", [ik.EMF_NONE, ik.EMF_FIT, ik.EMF_HELD])
+def test_the_fast_swarm_cost_equals_the_plain_reference(window, n_particles, mode):
+    """The vectorised kernel computes the plain kernel's cost to rounding, for every layout.
+
+    Segments of 1, 2, 3 and 5 samples exercise the loops' remainders; particle
+    counts that are not whole vectors exercise the padding; a held input
+    (higher moments 0) is also taken by the cheaper loop.
+    """
+    dt, n = window["dt"], window["va"].size
+    rng = np.random.default_rng(n_particles + 10 * mode)
+    voltage, current = (window["va"], window["ia"]) if mode else (window["vf"], window["if"])
+    emf = kernels.emf_input(window["if"], window["omega"])
+    box = np.log10([[2.5, 0.01], [5.0, 0.04]]) if mode else np.log10([[150, 30.0], [220, 80]])
+    pos = rng.uniform(box[0], box[1], (n_particles, 2))
+    starts = np.array([0, 10, 20, 30, 40, 700, 1500])
+    ends = np.array([0, 11, 22, 34, 650, 1400, n - 1])
+    moments = rng.normal(0.0, 5.0, (n - 1, 3)) + _hold(voltage)
+    for mu, mu_emf, n_moments in (
+        (_hold(voltage), _hold(emf), 1),
+        (_hold(voltage), _hold(emf), 3),
+        (moments, _hold(emf) + rng.normal(0.0, 1.0, (n - 1, 3)), 3),
+    ):
+        for noise_var in (0.0, 0.5):
+            args = (pos, mu, mu_emf, current, starts, ends, dt, True, mode, 1.1, noise_var)
+            plain = ik.plain_moment_swarm_costs(*args)
+            fast = ik.moment_swarm_costs(*args, n_moments)
+            # Projecting K out subtracts sums the size of sum(y^2): rounding is relative to them.
+            scale = float(current @ current)
+            np.testing.assert_allclose(fast, plain, rtol=1e-9, atol=1e-13 * scale)
