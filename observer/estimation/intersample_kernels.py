@@ -685,7 +685,7 @@ def moment_swarm_costs(
     return out
 
 
-@njit(nogil=True, cache=True)
+@njit(nogil=True, cache=True, fastmath={"contract"})
 def moment_residual(
     resistance: float,
     inductance: float,
@@ -705,8 +705,17 @@ def moment_residual(
     ``out`` receives the residuals of the segments' samples one after another
     (its length is the number of samples in segments); ``initial`` receives
     each segment's fitted initial current (A).
+
+    The recursion is latency-bound: the interval's input is summed apart, so
+    one FMA (not four dependent operations) separates ``f[k+1]`` from ``f[k]``,
+    and the free response is kept from the first pass for the second.
     """
     a, c0, c1, c2 = moment_coefficients(resistance, inductance, dt)
+    a_g = max(a, _A_FLOOR)
+    longest = 0
+    for s in range(starts.shape[0]):
+        longest = max(longest, ends[s] - starts[s] + 1)
+    free = np.empty(longest)
     pos = 0
     for s in range(starts.shape[0]):
         st = starts[s]
@@ -715,28 +724,33 @@ def moment_residual(
         g = 1.0
         s_dg = 0.0
         s_gg = 0.0
-        for k in range(st, en + 1):
+        for k in range(st, en):
             d = current[k] - f
             out[pos + k - st] = d
+            free[k - st] = g
             s_dg += d * g
             s_gg += g * g
-            if k < en:
-                u0 = mu[k, 0]
-                u1 = mu[k, 1]
-                u2 = mu[k, 2]
-                if has_emf:
-                    u0 -= emf_constant * mu_emf[k, 0]
-                    u1 -= emf_constant * mu_emf[k, 1]
-                    u2 -= emf_constant * mu_emf[k, 2]
-                f = a * f + c0 * u0 + c1 * u1 + c2 * u2
-                g = max(a, _A_FLOOR) * g + _G_FLOOR
+            if has_emf:
+                u = (
+                    c0 * (mu[k, 0] - emf_constant * mu_emf[k, 0])
+                    + c1 * (mu[k, 1] - emf_constant * mu_emf[k, 1])
+                    + c2 * (mu[k, 2] - emf_constant * mu_emf[k, 2])
+                )
+            else:
+                u = c0 * mu[k, 0] + c1 * mu[k, 1] + c2 * mu[k, 2]
+            f = a * f + u
+            g = a_g * g + _G_FLOOR
+        d = current[en] - f
+        out[pos + en - st] = d
+        free[en - st] = g
+        s_dg += d * g
+        s_gg += g * g
         i0 = s_dg / s_gg
         initial[s] = i0
-        g = 1.0
-        for k in range(st, en + 1):
-            out[pos + k - st] -= i0 * g
-            g = max(a, _A_FLOOR) * g + _G_FLOOR
-        pos += en - st + 1
+        m = en - st + 1
+        for i in range(m):
+            out[pos + i] -= i0 * free[i]
+        pos += m
 
 
 # ---------------------------------------------------------------- reconstruction
@@ -745,6 +759,24 @@ def moment_residual(
 _GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(6)
 GAUSS_U = 0.5 * (_GAUSS_X + 1.0)
 GAUSS_W = 0.5 * _GAUSS_W
+
+
+@njit(nogil=True, cache=True)
+def _cubic_point(v: np.ndarray, st: int, m: int, npts: int, x: float) -> float:
+    """The segment's cubic (``npts`` samples nearest ``x``, all inside) at ``x`` (periods)."""
+    lo = int(math.floor(x)) - 1
+    if lo < 0:
+        lo = 0
+    if lo > m - npts:
+        lo = m - npts
+    val = 0.0
+    for ia in range(npts):
+        la = 1.0
+        for ib in range(npts):
+            if ib != ia:
+                la *= (x - (lo + ib)) / (ia - ib)
+        val += la * v[st + lo + ia]
+    return val
 
 
 @njit(nogil=True, cache=True)
@@ -764,35 +796,60 @@ def interpolated_moments(
     ends), evaluated ``shift`` sample periods later (a relative delay between
     the voltage and current channels; > 0: the voltage is read later).
     Intervals outside segments are left as they are in ``out``.
+
+    Away from a segment's ends every interval sees the same cubic weights (they
+    depend on ``shift`` only), so its moments are one fixed stencil of at most
+    five samples, computed once per call; only the few intervals near the ends,
+    where the cubic turns one-sided, evaluate it point by point.
     """
+    n_nodes = gauss_u.shape[0]
+    # Nodes lie inside (0, 1): their floors after the shift differ by at most one.
+    base = int(math.floor(gauss_u[0] + shift))
+    for gi in range(n_nodes):
+        base = min(base, int(math.floor(gauss_u[gi] + shift)))
+    # stencil[j, t]: weight of sample (k + base - 1 + t) in moment j of interval k.
+    stencil = np.zeros((3, 5))
+    top = base
+    for gi in range(n_nodes):
+        u = gauss_u[gi]
+        o = int(math.floor(u + shift))
+        top = max(top, o)
+        frac = u + shift - o  # the node's position after sample k + o
+        legendre = (1.0, 2.0 * u - 1.0, 6.0 * u * u - 6.0 * u + 1.0)
+        for ia in range(4):
+            la = 1.0
+            for ib in range(4):
+                if ib != ia:
+                    la *= (frac + 1.0 - ib) / (ia - ib)
+            for j in range(3):
+                stencil[j, o - base + ia] += gauss_w[gi] * legendre[j] * la
+    taps = top - base + 4
     for s in range(starts.shape[0]):
         st = starts[s]
         en = ends[s]
         m = en - st + 1
         npts = 4 if m >= 4 else m
         for k in range(m - 1):
-            q0 = 0.0
-            q1 = 0.0
-            q2 = 0.0
-            for gi in range(gauss_u.shape[0]):
-                u = gauss_u[gi]
-                x = k + u + shift
-                lo = int(math.floor(x)) - 1
-                if lo < 0:
-                    lo = 0
-                if lo > m - npts:
-                    lo = m - npts
-                val = 0.0
-                for ia in range(npts):
-                    la = 1.0
-                    for ib in range(npts):
-                        if ib != ia:
-                            la *= (x - (lo + ib)) / (ia - ib)
-                    val += la * v[st + lo + ia]
-                wv = gauss_w[gi] * val
-                q0 += wv
-                q1 += wv * (2.0 * u - 1.0)
-                q2 += wv * (6.0 * u * u - 6.0 * u + 1.0)
+            first = k + base - 1
+            if npts == 4 and first >= 0 and k + top - 1 <= m - 4:
+                q0 = 0.0
+                q1 = 0.0
+                q2 = 0.0
+                for t in range(taps):
+                    x = v[st + first + t]
+                    q0 += stencil[0, t] * x
+                    q1 += stencil[1, t] * x
+                    q2 += stencil[2, t] * x
+            else:
+                q0 = 0.0
+                q1 = 0.0
+                q2 = 0.0
+                for gi in range(n_nodes):
+                    u = gauss_u[gi]
+                    wv = gauss_w[gi] * _cubic_point(v, st, m, npts, k + u + shift)
+                    q0 += wv
+                    q1 += wv * (2.0 * u - 1.0)
+                    q2 += wv * (6.0 * u * u - 6.0 * u + 1.0)
             out[st + k, 0] = q0
             out[st + k, 1] = q1
             out[st + k, 2] = q2

@@ -138,3 +138,22 @@ def test_scripts_have_help_and_reject_bad_arguments(script, option):
     assert bad.returncode == 2
     assert "unrecognized arguments: --no-such-option" in bad.stderr
     assert "Traceback" not in bad.stderr
+
+
+def test_kernel_speed_quick_reports_full_width_loops(tmp_path, capsys):
+    """The fast kernel's inner loops hold one packed (ymm) FMA per FMA of the loop."""
+    from bench import kernel_speed
+
+    out = tmp_path / "kernel_speed.md"
+    code = kernel_speed.main(
+        ["--quick", "--skip-pyswarms", "--particles", "5", "--output", str(out)]
+    )
+    assert code == 0
+    rows = _table_rows(out.read_text(encoding="utf-8"))
+    for loop in ("_plain_hold", "_plain_moments", "_fit_hold", "_fit_moments"):
+        found, needed = rows[f"`{loop}`"]
+        assert int(found) == int(needed) > 0, loop
+    field = rows["field, held voltage"]
+    assert field[0] == "5" and field[1] == "5"  # particles, FMAs per particle-sample
+    assert float(field[-1]) < 1e-12  # fast against plain
+    assert "wrote" in capsys.readouterr().out

@@ -145,3 +145,20 @@ def test_the_fast_swarm_cost_equals_the_plain_reference(window, n_particles, mod
             # Projecting K out subtracts sums the size of sum(y^2): rounding is relative to them.
             scale = float(current @ current)
             np.testing.assert_allclose(fast, plain, rtol=1e-9, atol=1e-13 * scale)
+
+
+@pytest.mark.parametrize("shift", [0.0, 0.3, -0.5, 0.999, 1.2, -1.5])
+def test_cubic_moments_stencil_equals_the_cubic_point_by_point(shift):
+    """The hoisted stencil of interior intervals is the cubic taken node by node."""
+    v = np.cumsum(np.random.default_rng(7).normal(size=60)) + 100.0
+    starts, ends = np.array([0, 6, 9, 13]), np.array([4, 7, 11, 59])
+    out = np.zeros((v.size - 1, 3))
+    ik.interpolated_moments(v, starts, ends, shift, ik.GAUSS_U, ik.GAUSS_W, out)
+    expected = np.zeros_like(out)
+    for st, en in zip(starts, ends, strict=True):
+        m = en - st + 1
+        for k in range(m - 1):
+            for u, weight in zip(ik.GAUSS_U, ik.GAUSS_W, strict=True):
+                val = weight * ik._cubic_point(v, st, m, min(m, 4), k + u + shift)
+                expected[st + k] += val * np.array([1.0, 2 * u - 1, 6 * u * u - 6 * u + 1])
+    np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12 * np.max(np.abs(v)))
