@@ -157,3 +157,38 @@ def test_kernel_speed_quick_reports_full_width_loops(tmp_path, capsys):
     assert field[0] == "5" and field[1] == "5"  # particles, FMAs per particle-sample
     assert float(field[-1]) < 1e-12  # fast against plain
     assert "wrote" in capsys.readouterr().out
+
+
+def test_window_work_quick_accounts_every_stage(tmp_path, capsys):
+    """The work ledger sees both circuits' swarms and polishes, and the replay speed."""
+    from bench import window_work
+
+    out = tmp_path / "window_work.md"
+    assert window_work.main(["--quick", "--output", str(out)]) == 0
+    text = out.read_text(encoding="utf-8")
+    assert "× real time" in text and "two threads" in text
+    evaluations = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) == 8 and cells[2] in ("swarm_stage", "specification_stage"):
+            evaluations[cells[0], cells[2]] = (float(cells[5]), float(cells[7]))
+    for circuit in ("field", "armature"):
+        assert evaluations[circuit, "swarm_stage"][0] > 0  # swarm evaluations per window
+        assert evaluations[circuit, "specification_stage"][1] > 0  # residuals per window
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_multi_motor_runs_one_daemon_process_and_reports_it(tmp_path):
+    from bench import multi_motor
+
+    out = tmp_path / "multi_motor.md"
+    code = multi_motor.main(
+        ["--motors", "1", "--layouts", "processes", "--rate", "2000", "--duration", "2",
+         "--warmup", "1", "--recording-s", "2", "--output", str(out)]
+    )  # fmt: skip
+    assert code == 0
+    rows = _table_rows(out.read_text(encoding="utf-8"))
+    row = rows["processes"]
+    assert row[0] == "1" and int(row[1]) >= 1  # motors, windows estimated per motor
+    with pytest.raises(SystemExit):
+        multi_motor.parse_args(["--layouts", "fibres"])
