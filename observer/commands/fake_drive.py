@@ -34,6 +34,9 @@ def _common(p: argparse.ArgumentParser) -> None:
                    help="serve X simulated seconds per wall second")  # fmt: skip
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="stop after S simulated seconds (default: run until killed)")  # fmt: skip
+    from observer.commands.drive_options import add_drive_options
+
+    add_drive_options(p)
 
 
 def _bounded_int(low: int, high: int, what: str) -> Callable[[str], int]:
@@ -118,6 +121,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def _stream(args: argparse.Namespace, rate: float) -> DriveStream:
     from observer.cli import UserError
+    from observer.commands.drive_options import drive_from_args
     from observer.estimation.motor import MOTORS
     from observer.simulation.drive_stream import DriveStream
 
@@ -125,7 +129,14 @@ def _stream(args: argparse.Namespace, rate: float) -> DriveStream:
         raise UserError("--rate and --speedup must be > 0 and --noise >= 0")
     if args.duration is not None and not args.duration > 0:
         raise UserError("--duration must be > 0")
-    return DriveStream(MOTORS[args.motor], sample_rate_hz=rate, noise=args.noise, seed=args.seed)
+    drive, name = drive_from_args(args, rate)
+    args.drive_name = name  # for the announcement
+    try:
+        return DriveStream(
+            MOTORS[args.motor], sample_rate_hz=rate, noise=args.noise, seed=args.seed, drive=drive
+        )
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
 
 
 def _stop_event() -> threading.Event:
@@ -168,7 +179,9 @@ def _run_serial(args: argparse.Namespace) -> int:
     stop = _stop_event()
     stream.prefetch()  # compile before announcing: no start-up burst
     where = drive.device_path + (f" (link {args.link})" if args.link else "")
-    _announce(f"serial fake drive on {where}, {args.rate:g} Hz x{args.speedup:g}")
+    _announce(
+        f"serial fake drive on {where}, {args.rate:g} Hz x{args.speedup:g}, drive {args.drive_name}"
+    )
     try:
         drive.run(stop, args.duration)
     finally:
@@ -198,7 +211,8 @@ def _run_can(args: argparse.Namespace) -> int:
         stop = _stop_event()
         stream.prefetch()
         _announce(
-            f"can fake drive on {args.interface} {args.channel}, {args.rate:g} Hz x{args.speedup:g}"
+            f"can fake drive on {args.interface} {args.channel}, {args.rate:g} Hz "
+            f"x{args.speedup:g}, drive {args.drive_name}"
         )
         drive.run(stop, args.duration)
     except OSError as exc:
@@ -232,7 +246,10 @@ def _run_modbus(args: argparse.Namespace) -> int:
             host, port = await drive.start(args.host, args.port)
         except (OSError, RuntimeError) as exc:  # pymodbus raises RuntimeError when bind fails
             raise UserError(f"cannot listen on {args.host}:{args.port}: {exc}") from exc
-        _announce(f"modbus fake drive on {host}:{port}, {args.rate:g} Hz x{args.speedup:g}")
+        _announce(
+            f"modbus fake drive on {host}:{port}, {args.rate:g} Hz x{args.speedup:g}, "
+            f"drive {args.drive_name}"
+        )
         try:
             if args.duration is None:
                 await stop.wait()

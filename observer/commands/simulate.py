@@ -30,7 +30,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "field current, default 0.08), thermal_drift (resistance rise at rated loss, 0.3), "
         "brush_drop (V, 1.0), armature_reaction (flux loss at rated current, 0.05), "
         "eddy_currents (coupling k^2, 0.2), sensor_offset (ia offset / rated current, 0.01), "
-        "sampling_skew (current delay in sample periods, 0.5)",
+        "sampling_skew (current delay in sample periods, 0.5); outside the diagnosis library "
+        "(recordings that diagnosis must call unexplained): emf_ripple (back-EMF ripple, 8 per "
+        "revolution, 0.02), tacho_error (speed reading's loss at rated current, 0.01)",
     )  # fmt: skip
     parser.add_argument(
         "--thermal-tau", type=float, default=20.0, metavar="S",
@@ -42,10 +44,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "(tach) is multiplied by 1+REL from S seconds on, e.g. Ra=+0.03@30 (a loose "
         "connection), K=-0.05@60 (a field fault), tach=-0.1@40 (the tachometer reads 10 %% low)",
     )  # fmt: skip
+    from observer.commands.drive_options import add_drive_options
+
+    add_drive_options(parser)
 
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
+    from observer.commands.drive_options import drive_from_args
     from observer.commands.outputs import check_outputs
     from observer.estimation.motor import MOTORS
     from observer.recording import write_recording
@@ -73,11 +79,12 @@ def main(args: argparse.Namespace) -> int:
             raise UserError(f"--change: {exc}") from None
     if not args.thermal_tau > 0:
         raise UserError(f"--thermal-tau must be > 0, got {args.thermal_tau}")
+    drive, drive_name = drive_from_args(args, args.rate)
     try:
         rec = simulate(
             motor, duration_s=args.duration, sample_rate_hz=args.rate, noise=args.noise,
             seed=args.seed, effects=effects, changes=changes,
-            thermal_time_constant_s=args.thermal_tau,
+            thermal_time_constant_s=args.thermal_tau, drive=drive, drive_name=drive_name,
         )  # fmt: skip
     except ValueError as exc:
         raise UserError(str(exc)) from None
@@ -90,7 +97,7 @@ def main(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise UserError(f"cannot write {args.output}: {exc.strerror or exc}") from exc
     log.info(
-        "wrote %s: %s, %d samples at %g Hz (%g s)",
-        args.output, motor.name, rec.n_samples, args.rate, rec.duration_s,
+        "wrote %s: %s, %d samples at %g Hz (%g s), drive %s",
+        args.output, motor.name, rec.n_samples, args.rate, rec.duration_s, drive_name,
     )  # fmt: skip
     return 0

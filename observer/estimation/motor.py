@@ -119,4 +119,26 @@ TRACTION_60V = MotorParameters(
     rated_speed_rad_s=3000 * 2 * math.pi / 60,
 )
 
-MOTORS: dict[str, MotorParameters] = {"p12": P12, "traction-60v": TRACTION_60V}
+# A 440 V, 20 A industrial DC motor (about 8 kW, 1000 rpm) with a 60 mH armature: the second
+# converter-fed test motor of the drive-chain work, with R, L and K unlike the P-12's
+# (armature time constant 50 ms against 5.7 ms, field 0.2 s against 0.27 s).
+INDUSTRIAL_440V = MotorParameters(
+    name="industrial-440V",
+    field_resistance_ohm=110.0,
+    field_inductance_h=22.0,
+    armature_resistance_ohm=1.2,
+    armature_inductance_h=0.06,
+    emf_constant_h=_emf_constant(440.0, 20.0, 1.2, 1000 * 2 * math.pi / 60, 220.0 / 110.0),
+    inertia_kgm2=0.5,
+    friction_nms=0.01,
+    rated_armature_voltage_v=440.0,
+    rated_armature_current_a=20.0,
+    rated_field_voltage_v=220.0,
+    rated_speed_rad_s=1000 * 2 * math.pi / 60,
+)
+
+MOTORS: dict[str, MotorParameters] = {
+    "p12": P12,
+    "traction-60v": TRACTION_60V,
+    "industrial-440v": INDUSTRIAL_440V,
+}

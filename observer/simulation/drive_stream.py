@@ -11,9 +11,17 @@ measures) and never breaks the winding equations.
 The stream starts with the field de-energised, as a drive does at power-up:
 the first second carries a field-current rise with the field time constant,
 the excitation field estimation needs.
+
+With a ``drive`` (converters and measurement chain, :mod:`observer.simulation.converter`) the
+chunks come from :class:`observer.simulation.converter_drive.ConverterDrive`, which carries its
+whole state from chunk to chunk: controller integrators, converter modes, pending firings and
+PWM edges, filter states and sample counters. That stream has no seam at all: its samples are
+those one long simulation would give for the same references.
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,9 +31,13 @@ from observer.simulation.simulate import (
     NoiseLevels,
     controller_gains,
     duty_cycle_profiles,
+    noise_fractions,
     plant_array,
     substeps,
 )
+
+if TYPE_CHECKING:
+    from observer.simulation.converter import DriveSpec
 
 #: Column order of :meth:`DriveStream.take`.
 STREAM_CHANNELS: tuple[str, ...] = ("va", "ia", "vf", "if", "omega")
@@ -46,6 +58,8 @@ class DriveStream:
         Seed of duty cycles and noise.
     chunk_s : float
         Simulated seconds generated per kernel call.
+    drive : DriveSpec, optional
+        Converters and measurement chain; ``None``: the ideal drive (voltages held per sample).
     """
 
     def __init__(
@@ -56,6 +70,7 @@ class DriveStream:
         noise: float | NoiseLevels = 0.002,
         seed: int = 0,
         chunk_s: float = 10.0,
+        drive: DriveSpec | None = None,
     ) -> None:
         if not sample_rate_hz > 0:
             raise ValueError(f"sample_rate_hz must be > 0, got {sample_rate_hz}")
@@ -74,9 +89,22 @@ class DriveStream:
         self._pending = np.empty((0, 5))
         #: Index of the next sample :meth:`take` returns.
         self.index = 0
+        self.drive = drive
+        self._converter = None
+        if drive is not None:
+            from observer.simulation.converter_drive import ConverterDrive
+
+            self._converter = ConverterDrive(
+                motor, drive, sample_rate_hz=self.sample_rate_hz,
+                noise=noise_fractions(motor, self.levels), rng=self._rng,
+            )  # fmt: skip
 
     def _chunk(self) -> np.ndarray:
         n = self.chunk_n
+        if self._converter is not None:
+            speed, load, field = duty_cycle_profiles(self.motor, n, self.dt, self._rng)
+            recorded, _, _ = self._converter.advance(speed, load, field)
+            return recorded
         # One sample more than returned: its true state (if, ia, omega at the
         # instant after the chunk) is exactly where the next chunk starts.
         speed, load, field = duty_cycle_profiles(self.motor, n + 1, self.dt, self._rng)

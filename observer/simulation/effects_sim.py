@@ -29,6 +29,21 @@ each departure is known. This module adds them to the drive simulator:
     The current channels are sampled ``delay`` seconds after the voltage
     channels (the recorded signals only; the drive sees the true currents).
 
+Two more effects are deliberately *outside* the diagnosis library
+(:mod:`observer.diagnosis`): a recording that carries them must come back
+``unexplained``, never as the nearest named effect. They need the converter
+drive's kernel (:mod:`observer.simulation.converter_kernels`), which tracks the
+shaft angle; without ``--converter`` it runs with ideal converters.
+
+``emf_ripple``
+    Commutation ripple of the back-EMF, periodic in shaft angle ``phi``:
+    ``e = K*if*omega*(1 + eps*cos(N*phi))`` with ``N`` = :data:`EMF_RIPPLE_PER_REV`.
+    Magnitude: ``eps``.
+``tacho_error``
+    A load-dependent speed-sensor error: the recorded speed is
+    ``omega*(1 - g*|ia|/Ia_rated)`` (the drive's own controller sees the true
+    speed). Magnitude: ``g``, the reading's loss at rated current.
+
 Plant effects are integrated in continuous time (RK4 sub-steps); sensor effects
 are applied to the recorded signals.
 
@@ -63,7 +78,15 @@ EFFECT_NAMES = (
     "eddy_currents",
     "sensor_offset",
     "sampling_skew",
+    "emf_ripple",
+    "tacho_error",
 )
+
+#: Effects the diagnosis library deliberately does not contain (see the module docstring).
+OUTSIDE_LIBRARY = ("emf_ripple", "tacho_error")
+
+#: Back-EMF ripple periods per shaft revolution of ``emf_ripple``.
+EMF_RIPPLE_PER_REV = 8
 
 #: Magnitude used when ``--effect NAME`` gives none, in the units of :data:`MAGNITUDE_UNITS`.
 DEFAULT_MAGNITUDES: dict[str, float] = {
@@ -74,6 +97,8 @@ DEFAULT_MAGNITUDES: dict[str, float] = {
     "eddy_currents": 0.2,
     "sensor_offset": 0.01,
     "sampling_skew": 0.5,
+    "emf_ripple": 0.02,
+    "tacho_error": 0.01,
 }
 
 #: What the one number given per effect means.
@@ -85,6 +110,8 @@ MAGNITUDE_UNITS: dict[str, str] = {
     "eddy_currents": "coupling k^2 of the eddy path to the field winding (fraction)",
     "sensor_offset": "armature current sensor offset (fraction of rated current)",
     "sampling_skew": "current channels' sampling delay (sample periods)",
+    "emf_ripple": f"back-EMF ripple amplitude, {EMF_RIPPLE_PER_REV} per revolution (fraction)",
+    "tacho_error": "speed reading's loss at rated armature current (fraction)",
 }
 
 #: Thermal time constant of the windings used by the simulator unless told otherwise (s).
@@ -300,6 +327,18 @@ def change_schedule(changes: Sequence[Change], n: int, dt: float) -> np.ndarray:
     return schedule
 
 
+def outside_library_array(motor: MotorParameters, magnitudes: Mapping[str, float]) -> np.ndarray:
+    """The effects outside the diagnosis library as the converter kernel takes them:
+    ``eps, N, g, Ia_rated`` (see the module docstring)."""
+    eps = float(magnitudes.get("emf_ripple", 0.0))
+    g = float(magnitudes.get("tacho_error", 0.0))
+    if not 0 <= eps < 0.5:
+        raise ValueError(f"emf_ripple amplitude must be in [0, 0.5), got {eps}")
+    if not 0 <= g < 0.5:
+        raise ValueError(f"tacho_error must be in [0, 0.5), got {g}")
+    return np.array([eps, float(EMF_RIPPLE_PER_REV), g, motor.rated_armature_current_a])
+
+
 # ------------------------------------------------------------------ plant kernel
 
 
@@ -440,9 +479,18 @@ def delayed(signal: np.ndarray, delay_samples: float) -> np.ndarray:
 
 def effects_metadata(magnitudes: Mapping[str, float], fx: PlantEffects) -> dict[str, Any]:
     """What a recording's metadata says about the effects it carries (the truth for tests)."""
-    return {
+    out: dict[str, Any] = {
         "names": sorted(magnitudes),
         "magnitudes": {k: float(v) for k, v in sorted(magnitudes.items())},
         "units": {k: MAGNITUDE_UNITS[k] for k in sorted(magnitudes)},
         "physical": fx.to_dict(),
     }
+    outside = sorted(set(magnitudes) & set(OUTSIDE_LIBRARY))
+    if outside:
+        if "emf_ripple" in magnitudes:
+            out["physical"]["emf_ripple"] = float(magnitudes["emf_ripple"])
+            out["physical"]["emf_ripple_per_rev"] = EMF_RIPPLE_PER_REV
+        if "tacho_error" in magnitudes:
+            out["physical"]["tacho_gain_loss_at_rated_current"] = float(magnitudes["tacho_error"])
+        out["outside_library"] = outside
+    return out

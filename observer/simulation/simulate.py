@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -24,10 +24,14 @@ from observer.recording import Recording
 from observer.simulation import kernels
 from observer.simulation.effects_sim import (
     CHANGE_TARGETS,
+    OUTSIDE_LIBRARY,
     THERMAL_TIME_CONSTANT_S,
     Change,
     change_schedule,
 )
+
+if TYPE_CHECKING:
+    from observer.simulation.converter import DriveSpec
 
 #: Rate (Hz) of the true thermal rise stored in a recording's metadata.
 TRUTH_RATE_HZ = 10.0
@@ -154,6 +158,8 @@ def simulate(
     effects: Mapping[str, float] | None = None,
     changes: Sequence[Change] = (),
     thermal_time_constant_s: float = THERMAL_TIME_CONSTANT_S,
+    drive: DriveSpec | None = None,
+    drive_name: str | None = None,
 ) -> Recording:
     """Simulate a recording of ``motor`` in rope-shovel-like operation.
 
@@ -173,6 +179,13 @@ def simulate(
         Physics the plain model leaves out, by name with a magnitude (see
         :mod:`observer.simulation.effects_sim`), e.g. ``{"brush_drop": 1.0}``. Without it
         the plant is the plain model of :func:`observer.simulation.kernels.simulate_drive`.
+    drive : DriveSpec, optional
+        Converters and measurement chain (:mod:`observer.simulation.converter`): the recording
+        is then made by :func:`observer.simulation.converter_drive.simulate_converter`. Without
+        it (and without the effects that need that kernel, ``emf_ripple`` and
+        ``tacho_error``) the drive is ideal: voltages held over each sample, no front end.
+    drive_name : str, optional
+        The preset ``drive`` came from, for the metadata.
 
     Returns
     -------
@@ -186,6 +199,20 @@ def simulate(
     if not sample_rate_hz > 0:
         raise ValueError(f"sample_rate_hz must be > 0, got {sample_rate_hz}")
     levels = noise if isinstance(noise, NoiseLevels) else NoiseLevels.relative(motor, noise)
+    if drive is not None or (effects and any(name in effects for name in OUTSIDE_LIBRARY)):
+        from observer.simulation.converter import ConverterSpec, DriveSpec
+        from observer.simulation.converter_drive import simulate_converter
+
+        if drive is None:
+            drive = DriveSpec(ConverterSpec(armature="ideal", field="ideal"))
+            drive_name = drive_name or "ideal"
+        fractions = noise if not isinstance(noise, NoiseLevels) else noise_fractions(motor, noise)
+        rec, _ = simulate_converter(
+            motor, drive, duration_s=duration_s, sample_rate_hz=sample_rate_hz,
+            noise=fractions, seed=seed, effects=effects, changes=changes,
+            thermal_time_constant_s=thermal_time_constant_s, drive_name=drive_name,
+        )  # fmt: skip
+        return rec
     rng = np.random.default_rng(seed)
     dt = 1.0 / sample_rate_hz
     n = int(round(duration_s * sample_rate_hz))
@@ -223,11 +250,7 @@ def simulate(
         if effects:
             fx_meta = effects_sim.effects_metadata(effects, fx)
         if fx.thermal_rise_per_w > 0:
-            step = max(1, int(round(sample_rate_hz / TRUTH_RATE_HZ)))
-            thermal = {
-                "t_s": [round(k * dt, 9) for k in range(0, n, step)],
-                "theta": [float(x) for x in true[::step, 5]],
-            }
+            thermal = thermal_truth(true[:, 5], dt)
     else:
         _, measured = kernels.simulate_drive(
             dt, n_sub, motor_array, controller_gains(motor, dt),
@@ -257,6 +280,16 @@ def simulate(
     if thermal is not None:
         metadata["thermal"] = thermal
     return Recording(t=t, signals=signals, metadata=metadata)
+
+
+def thermal_truth(theta: np.ndarray, dt: float) -> dict[str, list[float]]:
+    """The windings' true relative resistance rise per sample, thinned to
+    :data:`TRUTH_RATE_HZ` for a recording's ``"thermal"`` metadata."""
+    step = max(1, int(round(1.0 / (dt * TRUTH_RATE_HZ))))
+    return {
+        "t_s": [round(k * dt, 9) for k in range(0, theta.size, step)],
+        "theta": [float(x) for x in theta[::step]],
+    }
 
 
 #: Motor fields of the parameters :func:`true_parameters` returns.
@@ -298,3 +331,19 @@ def true_parameters(metadata: Mapping[str, Any], t_s: np.ndarray) -> dict[str, n
     out["theta"] = theta
     assert set(out) == {*CHANGE_TARGETS, "theta"}
     return out
+
+
+def noise_fractions(motor: MotorParameters, levels: NoiseLevels) -> dict[str, float]:
+    """Per-channel noise levels (SI) as fractions of the rated values."""
+    rated = (
+        motor.rated_armature_voltage_v,
+        motor.rated_armature_current_a,
+        motor.rated_field_voltage_v,
+        motor.rated_field_current_a,
+        motor.rated_speed_rad_s,
+    )
+    return {
+        name: float(level / r)
+        for name, level, r in zip(("va", "ia", "vf", "if", "omega"), levels.as_array(), rated,
+                                  strict=True)
+    }  # fmt: skip

@@ -129,3 +129,38 @@ def test_thermal_truth_is_recorded_with_its_time_constant():
     r_late = np.mean(fast["vf"][late]) / np.mean(fast["if"][late])
     theta = true_parameters(fast.metadata, fast.t[late])["theta"].mean()
     assert r_late == pytest.approx(185.0 * (1 + theta), rel=2e-3)
+
+
+def test_effects_outside_the_library_need_no_converter_and_say_so():
+    from observer.simulation.converter import ConverterSpec, DriveSpec
+    from observer.simulation.converter_drive import simulate_converter
+    from observer.simulation.effects_sim import EMF_RIPPLE_PER_REV, OUTSIDE_LIBRARY
+
+    assert parse_effects("emf_ripple,tacho_error=0.02") == {
+        "emf_ripple": DEFAULT_MAGNITUDES["emf_ripple"],
+        "tacho_error": 0.02,
+    }
+    rec = simulate(P12, duration_s=1.0, seed=3, effects={"emf_ripple": 0.03})
+    meta = rec.metadata["effects"]
+    assert meta["outside_library"] == ["emf_ripple"] and set(OUTSIDE_LIBRARY) >= {"emf_ripple"}
+    assert meta["physical"]["emf_ripple"] == 0.03
+    assert rec.metadata["converter"]["armature"]["kind"] == "ideal"
+    # the back-EMF carries the ripple, periodic in shaft angle
+    fx = {"emf_ripple": 0.05, "tacho_error": 0.04}
+    drive = DriveSpec(ConverterSpec(armature="ideal", field="ideal"))
+    rec, truth = simulate_converter(
+        P12, drive, duration_s=3.0, sample_rate_hz=2000.0, noise=0.0, seed=2, effects=fx,
+        want_truth=True,
+    )  # fmt: skip
+    assert truth is not None
+    plain_emf = P12.emf_constant_h * truth.i_f * truth.omega
+    moving = np.abs(truth.omega) > 10
+    np.testing.assert_allclose(
+        truth.emf[moving] / plain_emf[moving] - 1,
+        0.05 * np.cos(EMF_RIPPLE_PER_REV * truth.angle[moving]),
+        atol=1e-12,
+    )
+    # the recorded speed reads low in proportion to the armature current
+    expected = truth.omega * (1 - 0.04 * np.abs(truth.ia) / P12.rated_armature_current_a)
+    np.testing.assert_allclose(rec["omega"], expected, rtol=1e-12, atol=1e-12)
+    assert np.max(np.abs(rec["omega"] - truth.omega)) > 0.01 * P12.rated_speed_rad_s
