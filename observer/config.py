@@ -601,16 +601,27 @@ def load_config(path: str | os.PathLike[str], cls: type[T] = Config) -> T:  # ty
         Naming the file and the offending key.
     """
     p = Path(path)
+    return build(cls, read_toml(p), source=str(p), base_dir=p.parent)
+
+
+def read_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The tables of a TOML file.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the file: not found, unreadable, or not TOML.
+    """
+    p = Path(path)
     try:
         with p.open("rb") as fh:
-            data = tomllib.load(fh)
+            return tomllib.load(fh)
     except FileNotFoundError:
         raise ConfigError(f"{p}: config file not found") from None
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read config: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
-    return build(cls, data, source=str(p), base_dir=p.parent)
 
 
 def build(

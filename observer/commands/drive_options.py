@@ -1,7 +1,9 @@
 """Options of the simulated drive shared by ``simulate`` and ``fake-drive``: the converters and
 the measurement chain (``docs/drive_chain.md``).
 
-Precedence: the ``--preset``, then the ``--chain`` file, then the single options. Per-channel
+Precedence: the ``--preset``, then the ``--chain`` file, then the single options. The
+``--chain`` file's ``[chain]`` is the estimator's (:class:`observer.config.ChainConfig`), so one
+description of a front end serves ``simulate`` and ``estimate --config``. Per-channel
 options take ``VALUE`` for every channel, ``CH=VALUE,...`` for some, or both
 (``butter2@fs/4,va=none``). Bad values end in one line naming the option (exit status 2).
 """
@@ -27,14 +29,33 @@ _CONVERTER_NUMBERS = {
 }
 
 
+def _by_preset(value: Callable[[DriveSpec], str]) -> str:
+    """``default per --preset: ideal: X, realistic: Y``: an option's default under each preset."""
+    from observer.simulation.converter import PRESETS, ConverterSpec, DriveSpec
+
+    ideal = DriveSpec(ConverterSpec(armature="ideal", field="ideal"))
+    return "default per --preset: " + ", ".join(
+        f"{name}: {value(spec or ideal)}" for name, spec in PRESETS.items()
+    )
+
+
 def add_drive_options(parser: argparse.ArgumentParser) -> None:
     """Add the converter and chain options to ``parser``."""
-    from observer.simulation.converter import ARMATURE_KINDS, DEFAULT_PRESET, FIELD_KINDS, PRESETS
+    from observer.simulation.converter import (
+        ARMATURE_KINDS,
+        DEFAULT_PRESET,
+        FIELD_KINDS,
+        PRESETS,
+        ConverterSpec,
+    )
 
+    spec = ConverterSpec()
     g = parser.add_argument_group(
         "converter and measurement chain (equations: docs/drive_chain.md)",
-        "Per-channel options take VALUE for every channel, CH=VALUE,... for some "
-        "(channels va, ia, vf, if, omega), or both: 'butter2@fs/4,va=none'.",
+        "Precedence: --preset, then the --chain file, then these options. Per-channel options "
+        "take VALUE for every channel, CH=VALUE,... for some (channels va, ia, vf, if, omega), "
+        "or both: 'butter2@fs/4,va=none'. A default 'sized' is derived from the motor's "
+        "ratings (docs/drive_chain.md, Sizing).",
     )
     g.add_argument(
         "--preset", default=DEFAULT_PRESET, metavar="NAME",
@@ -42,87 +63,87 @@ def add_drive_options(parser: argparse.ArgumentParser) -> None:
         "front end; 'realistic': thyristor-6p armature, bridge-1p field, butter2@fs/4 on every "
         "channel, 12-bit ADC, --noise on every channel",
     )  # fmt: skip
-    g.add_argument("--converter", metavar="KIND", default=argparse.SUPPRESS,
-                   help=f"armature converter: {', '.join(ARMATURE_KINDS)} "
-                   "(default: the preset's)")  # fmt: skip
     g.add_argument(
-        "--field-converter",
-        metavar="KIND",
-        default=argparse.SUPPRESS,
-        help=f"field converter: {', '.join(FIELD_KINDS)} (default: the preset's)",
-    )
-    g.add_argument("--mains-hz", type=float, metavar="HZ", default=argparse.SUPPRESS,
-                   help="mains frequency of the bridges (default 50)")  # fmt: skip
+        "--converter", metavar="KIND", default=argparse.SUPPRESS,
+        help=f"armature converter: {', '.join(ARMATURE_KINDS)} "
+        f"({_by_preset(lambda d: d.converter.armature)})",
+    )  # fmt: skip
     g.add_argument(
-        "--line-voltage",
-        type=float,
-        metavar="V",
-        default=argparse.SUPPRESS,
-        help="RMS line voltage of the armature bridge (default: sized from the motor)",
-    )
-    g.add_argument("--field-supply", type=float, metavar="V", default=argparse.SUPPRESS,
-                   help="RMS supply of the field bridge, or the field chopper's DC link "
-                   "(default: sized from the motor)")  # fmt: skip
+        "--field-converter", metavar="KIND", default=argparse.SUPPRESS,
+        help=f"field converter: {', '.join(FIELD_KINDS)} "
+        f"({_by_preset(lambda d: d.converter.field)})",
+    )  # fmt: skip
     g.add_argument(
-        "--dc-link",
-        type=float,
-        metavar="V",
-        default=argparse.SUPPRESS,
-        help="DC link of the armature chopper (default: 1.2x rated voltage)",
-    )
-    g.add_argument("--source-inductance", type=float, metavar="H", default=argparse.SUPPRESS,
-                   help="commutating inductance per phase; > 0 gives commutation overlap "
-                   "(default 0)")  # fmt: skip
+        "--mains-hz", type=float, metavar="HZ", default=argparse.SUPPRESS,
+        help=f"mains frequency of the bridges (default {spec.mains_hz:g})",
+    )  # fmt: skip
     g.add_argument(
-        "--switching-hz",
-        type=float,
-        metavar="HZ",
-        default=argparse.SUPPRESS,
-        help="PWM carrier of the choppers (default 2000)",
-    )
+        "--line-voltage", type=float, metavar="V", default=argparse.SUPPRESS,
+        help="RMS line voltage of the armature bridge (default: sized, 1.35*V*cos(15 deg) = "
+        "1.15x rated armature voltage)",
+    )  # fmt: skip
     g.add_argument(
-        "--dead-time",
-        type=float,
-        metavar="S",
-        default=argparse.SUPPRESS,
-        help="dead time of a bridge changeover after zero current (default 0.002)",
-    )
+        "--field-supply", type=float, metavar="V", default=argparse.SUPPRESS,
+        help="RMS supply of the field bridge, or the field chopper's DC link (default: sized, "
+        "1.5x rated field voltage at 15 deg; chopper 1.6x)",
+    )  # fmt: skip
     g.add_argument(
-        "--chain",
-        metavar="FILE.toml",
-        default=argparse.SUPPRESS,
-        help="[converter] and [chain] tables (example: config/drive/chain-example.toml)",
-    )
-    g.add_argument("--aa-filter", metavar="[CH=]KIND ORDER@CUTOFF,...", default=argparse.SUPPRESS,
-                   help="anti-aliasing filter: none, or butter|bessel|rc with order 1-4 and the "
-                   "-3 dB cutoff in Hz or as fs/N, e.g. butter2@fs/4, va=rc1@500")  # fmt: skip
+        "--dc-link", type=float, metavar="V", default=argparse.SUPPRESS,
+        help="DC link of the armature chopper (default: sized, 1.2x rated armature voltage)",
+    )  # fmt: skip
     g.add_argument(
-        "--adc-bits",
-        metavar="[CH=]BITS,...",
-        default=argparse.SUPPRESS,
-        help="ADC resolution (1-24 bits), or none",
-    )
-    g.add_argument("--full-scale", metavar="[CH=]VALUE,...", default=argparse.SUPPRESS,
-                   help="bipolar ADC range +-VALUE in V, A or rad/s (default: from the "
-                   "converter's sizing)")  # fmt: skip
-    g.add_argument("--sample-delay", metavar="[CH=]SECONDS,...", default=argparse.SUPPRESS,
-                   help="sampling delay behind the nominal instant, below one period "
-                   "(a multiplexed ADC), e.g. ia=20e-6,if=40e-6")  # fmt: skip
+        "--source-inductance", type=float, metavar="H", default=argparse.SUPPRESS,
+        help="commutating inductance per phase; > 0 gives commutation overlap; in series with "
+        f"the armature for the chopper (default {spec.source_inductance_h:g})",
+    )  # fmt: skip
     g.add_argument(
-        "--gain-error",
-        metavar="[CH=]FRACTION,...",
-        default=argparse.SUPPRESS,
-        help="sensor gain error, e.g. ia=0.01 (reads 1 %% high)",
-    )
+        "--switching-hz", type=float, metavar="HZ", default=argparse.SUPPRESS,
+        help=f"PWM carrier of the choppers (default {spec.switching_hz:g})",
+    )  # fmt: skip
     g.add_argument(
-        "--offset",
-        metavar="[CH=]VALUE,...",
-        default=argparse.SUPPRESS,
-        help="sensor offset in V, A or rad/s",
-    )
-    g.add_argument("--averaging", metavar="CH,...", default=argparse.SUPPRESS,
-                   help="channels measured by an integrating ADC (the mean over the period "
-                   "ending at the sample), e.g. va,vf; 'none' for no channel")  # fmt: skip
+        "--dead-time", type=float, metavar="S", default=argparse.SUPPRESS,
+        help=f"dead time of a bridge changeover after zero current (default {spec.dead_time_s:g})",
+    )  # fmt: skip
+    g.add_argument(
+        "--chain", metavar="FILE.toml", default=argparse.SUPPRESS,
+        help="a drive file: [converter], [chain] (the estimator's grammar: [chain.CH] filter, "
+        "delay_us, averaging) and [sensors] tables (example: config/drive/chain-example.toml); "
+        "a dcobserver config gives its [chain] (default: none)",
+    )  # fmt: skip
+    g.add_argument(
+        "--aa-filter", metavar="[CH=]KIND ORDER@CUTOFF,...", default=argparse.SUPPRESS,
+        help="anti-aliasing filter: none, or butter|bessel|rc with order 1-4 and the -3 dB "
+        "cutoff in Hz or as fs/N, e.g. butter2@fs/4, va=rc1@500 "
+        f"({_by_preset(lambda d: d.chain['va'].filter_text())})",
+    )  # fmt: skip
+    g.add_argument(
+        "--adc-bits", metavar="[CH=]BITS,...", default=argparse.SUPPRESS,
+        help="ADC resolution (1-24 bits), or none "
+        f"({_by_preset(lambda d: str(d.chain['va'].bits).lower())})",
+    )  # fmt: skip
+    g.add_argument(
+        "--full-scale", metavar="[CH=]VALUE,...", default=argparse.SUPPRESS,
+        help="bipolar ADC range +-VALUE in V, A or rad/s (default: sized, va and vf 1.1x the "
+        "supply's peak, ia 4x and if, omega 2x rated)",
+    )  # fmt: skip
+    g.add_argument(
+        "--delay-us", metavar="[CH=]MICROSECONDS,...", default=argparse.SUPPRESS,
+        help="sampling delay behind the nominal instant, below one period (a multiplexed "
+        "ADC), e.g. ia=20,if=40 (default 0)",
+    )  # fmt: skip
+    g.add_argument(
+        "--gain-error", metavar="[CH=]FRACTION,...", default=argparse.SUPPRESS,
+        help="sensor gain error, e.g. ia=0.01 (reads 1 %% high) (default 0)",
+    )  # fmt: skip
+    g.add_argument(
+        "--offset", metavar="[CH=]VALUE,...", default=argparse.SUPPRESS,
+        help="sensor offset in V, A or rad/s (default 0)",
+    )  # fmt: skip
+    g.add_argument(
+        "--averaging", metavar="CH,...", default=argparse.SUPPRESS,
+        help="channels measured by an integrating ADC (the mean over the period ending at the "
+        "sample), e.g. va,vf; 'none' for no channel (default none)",
+    )  # fmt: skip
 
 
 def _float(text: str) -> float:
@@ -148,7 +169,7 @@ _CHANNEL_OPTIONS: dict[str, tuple[str | None, Callable[[str], Any]]] = {
     "aa_filter": (None, str),
     "adc_bits": ("bits", _bits),
     "full_scale": ("full_scale", _float),
-    "sample_delay": ("delay_s", _float),
+    "delay_us": ("delay_s", lambda text: _float(text) / 1e6),
     "gain_error": ("gain_error", _float),
     "offset": ("offset", _float),
 }
@@ -168,11 +189,11 @@ def drive_from_args(
         One line naming the option, or the file and key.
     """
     from observer.cli import UserError
+    from observer.config import parse_filter
     from observer.simulation.chain import (
         CHANNELS,
         MeasurementChain,
         apply_per_channel,
-        parse_filter,
         parse_per_channel,
     )
     from observer.simulation.converter import (
@@ -258,7 +279,7 @@ def drive_from_args(
 def _plain(exc: ValueError) -> str:
     # A chain error names its key (chain.ia.bits: ...); on the command line the option is named.
     text = str(exc)
-    if text.startswith("chain."):
+    if text.startswith(("chain.", "sensors.")):
         key, _, rest = text.partition(": ")
         return f"{key.split('.', 1)[1]}: {rest}"
     return text

@@ -15,11 +15,20 @@ Filters and sampling run inside the drive kernel (:mod:`observer.simulation.conv
 on the motor's waveforms integrated far finer than the sample rate; gain, offset, noise and
 quantisation are applied to the sampled values here (:meth:`ResolvedChannel.measure`).
 
+One description for the simulator and the estimator: a :class:`ChannelChain` *is* the
+estimator's :class:`~observer.estimation.frontend.FrontEnd` (filter, delay, averaging: the
+``[chain]`` grammar of :mod:`observer.config`, filters in :func:`observer.config.parse_filter`,
+sections in :func:`observer.estimation.frontend.filter_sections`) plus what only a simulation
+knows: sensor gain error and offset, ADC bits and range, noise (the ``[sensors]`` table of a
+drive file, :mod:`observer.simulation.converter`). :meth:`MeasurementChain.to_config` is the
+``[chain]`` the estimator is given for such a recording, :meth:`MeasurementChain.with_config`
+reads one.
+
 A :class:`ChannelChain` is what the user describes (a filter cutoff may be a fraction of the
 sample rate, a full scale or a noise level may be left to the drive's sizing); a
 :class:`ResolvedChannel` is the same channel with every number fixed for one sample rate and one
 converter, which is what the recording's metadata reports. Bad values raise :class:`ValueError`
-with a one-line message naming the key, e.g. ``chain.ia.cutoff_hz``.
+with a one-line message naming the key, e.g. ``chain.ia.filter`` or ``sensors.ia.bits``.
 """
 
 from __future__ import annotations
@@ -33,46 +42,42 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from observer.config import (
+    FILTER_KINDS,
+    MAX_FILTER_ORDER,
+    ChainConfig,
+    ChannelFrontEnd,
+    parse_filter,
+)
+from observer.estimation.frontend import FrontEnd, filter_sections
 from observer.recording import AdcScale
 
 #: Channel order of every array in this package (the recording's channel names).
 CHANNELS: tuple[str, ...] = ("va", "ia", "vf", "if", "omega")
 
-#: Analog anti-aliasing filter families.
-FILTER_KINDS: tuple[str, ...] = ("none", "butter", "bessel", "rc")
-
-MAX_FILTER_ORDER = 4
 MAX_ADC_BITS = 24
 
-# Bessel (maximally flat delay) sections normalised to -3 dB at 1 rad/s: (w0, Q) per section,
-# Q = 0 marks a first-order section (the poles of scipy.signal.bessel(N, 1, norm="mag")).
-_BESSEL: dict[int, tuple[tuple[float, float], ...]] = {
-    1: ((1.0, 0.0),),
-    2: ((1.2720196495140679, 0.5773502691896257),),
-    3: ((1.3226757999104441, 0.0), (1.4476171331469865, 0.6910466258250713)),
-    4: ((1.4301715599939884, 0.5219345816689802), (1.6033575162169704, 0.8055382818416656)),
-}
+#: Where each key of a channel lives in a drive file: the ``[chain]`` grammar the estimator
+#: shares, or the simulator's own ``[sensors]`` table.
+FRONT_END_KEYS: tuple[str, ...] = ("filter", "delay_us", "averaging")
+SENSOR_KEYS: tuple[str, ...] = ("bits", "full_scale", "noise", "gain_error", "offset")
+
+
+def _table(field: str) -> str:
+    """The drive-file table of a :class:`ChannelChain` field (for error messages)."""
+    return "sensors" if field in SENSOR_KEYS else "chain"
 
 
 @dataclass(frozen=True)
-class ChannelChain:
+class ChannelChain(FrontEnd):
     """One channel's front end as described by the user; ``None`` fields are filled in later.
+
+    The fields of :class:`~observer.estimation.frontend.FrontEnd` (``filter``, ``order``,
+    ``cutoff_hz``, ``cutoff_per_fs``, ``delay_s``, ``averaging``: the ``[chain]`` grammar),
+    and:
 
     Attributes
     ----------
-    filter : str
-        Anti-aliasing filter family: ``none``, ``butter`` (Butterworth), ``bessel`` or ``rc``
-        (a cascade of equal first-order RC stages).
-    order : int
-        Filter order, 1..4 (0 with ``none``).
-    cutoff_hz : float or None
-        The filter's -3 dB frequency (Hz), for every family.
-    cutoff_per_fs : float or None
-        The -3 dB frequency as a fraction of the sample rate (0.25 = fs/4); exactly one of
-        ``cutoff_hz`` and ``cutoff_per_fs`` is set when there is a filter.
-    delay_s : float
-        Sampling instant after the nominal one (s): a multiplexed ADC converts the channels one
-        after another. ``0 <= delay_s < 1/fs``.
     gain_error : float
         Relative sensor gain error (0.01 = reads 1 % high).
     offset : float
@@ -84,100 +89,144 @@ class ChannelChain:
     noise : float or None
         White noise at the ADC input, as a fraction of the channel's rated value (0.002 =
         0.2 %); ``None``: the recording's noise level.
-    averaging : bool
-        An integrating measurement: the sample is the mean of the filtered signal over the
-        sample period that ends at the sampling instant (as a V/f or integrating converter
-        delivers it).
+
+    ``delay_s`` is the sampling instant after the nominal one (s; ``delay_us`` in files and
+    options, ``0 <= delay < 1/fs``); ``averaging`` an integrating measurement, the mean of the
+    filtered signal over the period that ends at the sampling instant (a V/f or integrating
+    converter).
     """
 
-    filter: str = "none"
-    order: int = 0
-    cutoff_hz: float | None = None
-    cutoff_per_fs: float | None = None
-    delay_s: float = 0.0
     gain_error: float = 0.0
     offset: float = 0.0
     bits: int | None = None
     full_scale: float | None = None
     noise: float | None = None
-    averaging: bool = False
 
     def check(self, key: str = "chain") -> None:
-        """Raise :class:`ValueError` naming ``key.field`` if a value is impossible by itself."""
+        """Raise :class:`ValueError` if a value is impossible by itself.
+
+        The message names ``KEY.field`` with ``key`` the channel's ``chain.CH`` (its
+        ``[sensors]`` fields are named ``sensors.CH.field``).
+        """
+
+        def where(field: str) -> str:
+            return re.sub(r"^chain\b", _table(field), key) + "." + field
+
         if self.filter not in FILTER_KINDS:
             raise ValueError(
-                f"{key}.filter: unknown filter {self.filter!r} (expected {', '.join(FILTER_KINDS)})"
+                f"{where('filter')}: unknown filter {self.filter!r} "
+                f"(expected {', '.join(FILTER_KINDS)})"
             )
         if self.filter == "none":
             if self.order != 0:
-                raise ValueError(f"{key}.order: a channel without filter has order 0")
+                raise ValueError(f"{where('order')}: a channel without filter has order 0")
         else:
             if isinstance(self.order, bool) or not isinstance(self.order, int):
-                raise ValueError(f"{key}.order: must be an integer, got {self.order!r}")
+                raise ValueError(f"{where('order')}: must be an integer, got {self.order!r}")
             if not 1 <= self.order <= MAX_FILTER_ORDER:
                 raise ValueError(
-                    f"{key}.order: filter order must be 1..{MAX_FILTER_ORDER}, got {self.order}"
+                    f"{where('order')}: filter order must be 1..{MAX_FILTER_ORDER}, "
+                    f"got {self.order}"
                 )
             if (self.cutoff_hz is None) == (self.cutoff_per_fs is None):
                 raise ValueError(
-                    f"{key}.cutoff_hz: a {self.filter} filter needs one cutoff "
+                    f"{where('cutoff_hz')}: a {self.filter} filter needs one cutoff "
                     "(in Hz, or as a fraction of the sample rate)"
                 )
             for name in ("cutoff_hz", "cutoff_per_fs"):
                 value = getattr(self, name)
                 if value is not None and not (math.isfinite(value) and value > 0):
-                    raise ValueError(f"{key}.{name}: must be > 0, got {value!r}")
-        _finite(self.delay_s, f"{key}.delay_s")
+                    raise ValueError(f"{where(name)}: must be > 0, got {value!r}")
+        _finite(self.delay_s, where("delay_us"))
         if self.delay_s < 0:
-            raise ValueError(f"{key}.delay_s: must be >= 0, got {self.delay_s!r}")
-        _finite(self.gain_error, f"{key}.gain_error")
+            raise ValueError(f"{where('delay_us')}: must be >= 0, got {self.delay_s * 1e6:g}")
+        _finite(self.gain_error, where("gain_error"))
         if self.gain_error <= -1:
-            raise ValueError(f"{key}.gain_error: must be > -1, got {self.gain_error!r}")
-        _finite(self.offset, f"{key}.offset")
+            raise ValueError(f"{where('gain_error')}: must be > -1, got {self.gain_error!r}")
+        _finite(self.offset, where("offset"))
         if self.bits is not None:
             if isinstance(self.bits, bool) or not isinstance(self.bits, int):
-                raise ValueError(f"{key}.bits: must be an integer, got {self.bits!r}")
+                raise ValueError(f"{where('bits')}: must be an integer, got {self.bits!r}")
             if not 1 <= self.bits <= MAX_ADC_BITS:
                 raise ValueError(
-                    f"{key}.bits: ADC resolution must be 1..{MAX_ADC_BITS} bits, got {self.bits}"
+                    f"{where('bits')}: ADC resolution must be 1..{MAX_ADC_BITS} bits, "
+                    f"got {self.bits}"
                 )
         if self.full_scale is not None and not (
             math.isfinite(self.full_scale) and self.full_scale > 0
         ):
-            raise ValueError(f"{key}.full_scale: must be > 0, got {self.full_scale!r}")
+            raise ValueError(f"{where('full_scale')}: must be > 0, got {self.full_scale!r}")
         if self.noise is not None and not (math.isfinite(self.noise) and self.noise >= 0):
-            raise ValueError(f"{key}.noise: must be >= 0, got {self.noise!r}")
+            raise ValueError(f"{where('noise')}: must be >= 0, got {self.noise!r}")
         if not isinstance(self.averaging, bool):
-            raise ValueError(f"{key}.averaging: must be true or false, got {self.averaging!r}")
+            raise ValueError(f"{where('averaging')}: must be true or false, got {self.averaging!r}")
 
     def check_rate(self, sample_rate_hz: float, key: str = "chain") -> None:
-        """Raise :class:`ValueError` if the channel cannot work at ``sample_rate_hz``."""
+        """Raise :class:`ValueError` naming ``key.filter`` or ``key.delay_us`` if the channel
+        cannot work at ``sample_rate_hz`` (the limits of
+        :func:`observer.estimation.frontend.check_against_rate`)."""
         nyquist = sample_rate_hz / 2
         cutoff = self.cutoff_at(sample_rate_hz)
-        if cutoff is not None and cutoff > nyquist:
-            name = "cutoff_hz" if self.cutoff_hz is not None else "cutoff_per_fs"
+        if cutoff is not None and cutoff >= nyquist:
             raise ValueError(
-                f"{key}.{name}: cutoff {cutoff:g} Hz is above the Nyquist frequency "
+                f"{key}.filter: cutoff {cutoff:g} Hz is at or above the Nyquist frequency "
                 f"{nyquist:g} Hz of {sample_rate_hz:g} Hz sampling"
             )
         period = 1.0 / sample_rate_hz
         if self.delay_s >= period:
             raise ValueError(
-                f"{key}.delay_s: {self.delay_s:g} s is not below one sample period "
-                f"({period:g} s at {sample_rate_hz:g} Hz)"
+                f"{key}.delay_us: {self.delay_s * 1e6:g} us is not below one sample period "
+                f"({period * 1e6:g} us at {sample_rate_hz:g} Hz)"
             )
 
     def cutoff_at(self, sample_rate_hz: float) -> float | None:
         """The -3 dB frequency (Hz) at ``sample_rate_hz``; ``None`` without a filter."""
         if self.filter == "none":
             return None
-        if self.cutoff_hz is not None:
-            return float(self.cutoff_hz)
-        assert self.cutoff_per_fs is not None
-        return float(self.cutoff_per_fs * sample_rate_hz)
+        return super().cutoff_at(sample_rate_hz)
+
+    def filter_text(self) -> str:
+        """The filter in the grammar of :func:`observer.config.parse_filter` (``butter2@fs/4``)."""
+        if self.filter == "none":
+            return "none"
+        if self.cutoff_per_fs is not None:
+            return f"{self.filter}{self.order}@fs/{1.0 / self.cutoff_per_fs:.12g}"
+        return f"{self.filter}{self.order}@{self.cutoff_hz:.12g}"
+
+    def front_end_config(self) -> ChannelFrontEnd:
+        """This channel as the estimator's ``[chain.CH]`` table describes it."""
+        return ChannelFrontEnd(
+            filter=self.filter_text(),
+            delay_us=round(self.delay_s * 1e6, 9),
+            averaging=self.averaging,
+        )
 
     def replace(self, **changes: Any) -> ChannelChain:
         return dataclasses.replace(self, **changes)
+
+
+#: The field of :class:`observer.config.ChainConfig` per channel (``if`` is ``i_f`` there).
+CONFIG_FIELDS: dict[str, str] = {
+    f.metadata.get("key", f.name): f.name
+    for f in dataclasses.fields(ChainConfig)
+    if f.name != "intersample"
+}
+
+
+def front_end_changes(
+    table: ChannelFrontEnd, given: Iterator[str] | Any = FRONT_END_KEYS
+) -> dict[str, Any]:
+    """:class:`ChannelChain` fields of a ``[chain.CH]`` table's keys ``given`` (default: all):
+    the filter parsed by :func:`observer.config.parse_filter`, ``delay_us`` to seconds."""
+    out: dict[str, Any] = {}
+    for key in given:
+        if key == "filter" and table.filter is not None:
+            out |= parse_filter(table.filter)
+        elif key == "delay_us":
+            out["delay_s"] = table.delay_us / 1e6
+        elif key == "averaging":
+            out["averaging"] = table.averaging
+    return out
 
 
 @dataclass(frozen=True)
@@ -216,6 +265,24 @@ class MeasurementChain:
         """Raise :class:`ValueError` naming the channel and key that ``sample_rate_hz`` breaks."""
         for name, ch in self.items():
             ch.check_rate(sample_rate_hz, f"chain.{name}")
+
+    def to_config(self, intersample: str = "auto") -> ChainConfig:
+        """The estimator's ``[chain]`` for a recording made through this chain.
+
+        Filters, delays and averaging carry over exactly; what the estimator is not told
+        (sensor errors, ADC, noise) stays out.
+        """
+        tables = {CONFIG_FIELDS[name]: ch.front_end_config() for name, ch in self.items()}
+        return ChainConfig(intersample=intersample, **tables)
+
+    def with_config(self, config: ChainConfig) -> MeasurementChain:
+        """This chain with the front ends an estimator's ``[chain]`` knows (``filter`` set)."""
+        result = self
+        for name, field in CONFIG_FIELDS.items():
+            table = getattr(config, field)
+            if table.known:
+                result = result.with_channel(name, **front_end_changes(table))
+        return result
 
 
 @dataclass(frozen=True)
@@ -290,49 +357,6 @@ def quantise(x: np.ndarray, lsb: float, bits: int, offset: float = ADC_OFFSET) -
     return result
 
 
-def filter_sections(kind: str, order: int, cutoff_hz: float | None) -> np.ndarray:
-    """Sections ``(kind, w0, Q)`` (see :meth:`ResolvedChannel.sections`) of a low pass with its
-    -3 dB point at ``cutoff_hz``; at most two sections (order <= 4)."""
-    out = np.zeros((2, 3))
-    if kind == "none" or order == 0:
-        return out
-    if cutoff_hz is None:
-        raise ValueError(f"a {kind} filter needs a cutoff")
-    wc = 2.0 * math.pi * cutoff_hz
-    secs: list[tuple[float, float]]
-    if kind == "butter":
-        secs = [(1.0, 1.0 / (2.0 * math.sin(math.pi * (2 * k + 1) / (2 * order))))
-                for k in range(order // 2)]  # fmt: skip
-        if order % 2:
-            secs.append((1.0, 0.0))
-    elif kind == "bessel":
-        secs = list(_BESSEL[order])
-    elif kind == "rc":
-        # n equal stages, -3 dB of the cascade at wc: each stage's corner is wc/sqrt(2^(1/n)-1);
-        # two equal first-order stages make one second-order section with Q = 1/2.
-        stage = 1.0 / math.sqrt(2.0 ** (1.0 / order) - 1.0)
-        secs = [(stage, 0.5)] * (order // 2)
-        if order % 2:
-            secs.append((stage, 0.0))
-    else:
-        raise ValueError(f"unknown filter {kind!r}")
-    for i, (w0, q) in enumerate(secs):
-        out[i] = (1.0 if q == 0.0 else 2.0, w0 * wc, q)
-    return out
-
-
-def frequency_response(sections: np.ndarray, f_hz: np.ndarray | float) -> np.ndarray:
-    """Complex response of :func:`filter_sections` at ``f_hz`` (for checks and the docs)."""
-    s = 2j * math.pi * np.asarray(f_hz, dtype=float)
-    h = np.ones_like(s)
-    for kind, w0, q in sections:
-        if kind == 1:
-            h = h * w0 / (s + w0)
-        elif kind == 2:
-            h = h * w0 * w0 / (s * s + (w0 / q) * s + w0 * w0)
-    return h
-
-
 def resolve_chain(
     chain: MeasurementChain,
     sample_rate_hz: float,
@@ -370,52 +394,7 @@ def resolve_chain(
 
 # ------------------------------------------------------------------ the option mini-language
 
-_FILTER_RE = re.compile(
-    r"^\s*(?P<kind>[a-z]+?)(?P<order>\d+)?\s*(@\s*(?P<cutoff>[^@]+?))?\s*$", re.IGNORECASE
-)
-_FS_RE = re.compile(r"^fs\s*/\s*(?P<div>[0-9.eE+-]+)$", re.IGNORECASE)
-
 T = TypeVar("T")
-
-
-def parse_filter(text: str) -> dict[str, Any]:
-    """``none`` or ``KIND ORDER @ CUTOFF`` -> fields of :class:`ChannelChain`.
-
-    ``KIND`` is ``butter``, ``bessel`` or ``rc``, ``ORDER`` 1..4, ``CUTOFF`` the -3 dB
-    frequency in Hz (``500``, ``500hz``) or a fraction of the sample rate (``fs/4``), e.g.
-    ``butter2@fs/4``, ``rc1@500``.
-    """
-    raw = text.strip().lower()
-    if raw in ("none", "0", "off"):
-        return {"filter": "none", "order": 0, "cutoff_hz": None, "cutoff_per_fs": None}
-    m = _FILTER_RE.match(raw)
-    if not m:
-        raise ValueError(f"filter {text!r} is not KIND ORDER@CUTOFF, e.g. butter2@fs/4 or rc1@500")
-    kind = m["kind"]
-    if kind not in FILTER_KINDS or kind == "none":
-        raise ValueError(
-            f"unknown filter {kind!r} in {text!r} (expected none, butter, bessel or rc)"
-        )
-    if m["order"] is None:
-        raise ValueError(f"filter {text!r} has no order (e.g. {kind}2@fs/4)")
-    order = int(m["order"])
-    if not 1 <= order <= MAX_FILTER_ORDER:
-        raise ValueError(f"filter order must be 1..{MAX_FILTER_ORDER}, got {order} in {text!r}")
-    if m["cutoff"] is None:
-        raise ValueError(f"filter {text!r} has no cutoff (e.g. {kind}{order}@500 or @fs/4)")
-    cutoff = m["cutoff"].strip()
-    fs = _FS_RE.match(cutoff)
-    if fs:
-        div = _number(fs["div"], f"cutoff {cutoff!r}")
-        if not div > 0:
-            raise ValueError(f"cutoff {cutoff!r}: the divisor must be > 0")
-        return {"filter": kind, "order": order, "cutoff_hz": None, "cutoff_per_fs": 1.0 / div}
-    if cutoff.endswith("hz"):
-        cutoff = cutoff[:-2].strip()
-    hz = _number(cutoff, f"cutoff {m['cutoff'].strip()!r}")
-    if not hz > 0:
-        raise ValueError(f"cutoff must be > 0 Hz, got {hz:g}")
-    return {"filter": kind, "order": order, "cutoff_hz": hz, "cutoff_per_fs": None}
 
 
 def parse_per_channel(text: str, convert: Callable[[str], T]) -> dict[str, T]:
@@ -458,7 +437,7 @@ def apply_per_channel(
                 result = result.with_channel(name, **values["*"])
         except ValueError as exc:
             # a value for every channel fails on the first one: name the key, not the channel
-            raise ValueError(re.sub(r"^chain\.[a-z]+\.", "chain.", str(exc))) from None
+            raise ValueError(re.sub(r"^(chain|sensors)\.[a-z]+\.", r"\1.", str(exc))) from None
     for name, changes in values.items():
         if name != "*":
             result = result.with_channel(name, **changes)
@@ -468,16 +447,6 @@ def apply_per_channel(
 def _split_items(text: str) -> list[str]:
     # A filter's "fs/4" has no comma, so items split on commas alone.
     return [item.strip() for item in text.split(",") if item.strip()]
-
-
-def _number(text: str, what: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"{what} is not a number") from None
-    if not math.isfinite(value):
-        raise ValueError(f"{what} is not finite")
-    return value
 
 
 def _finite(value: Any, key: str) -> None:

@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,13 +29,7 @@ import numpy as np
 
 from observer.config import ConfigError
 from observer.estimation.motor import MotorParameters
-from observer.simulation.chain import (
-    CHANNELS,
-    ChannelChain,
-    MeasurementChain,
-    apply_per_channel,
-    parse_filter,
-)
+from observer.simulation.chain import ChannelChain, MeasurementChain, apply_per_channel
 
 # (numba is imported only to size a converter, so that ``dcobserver --help`` stays fast)
 ARMATURE_KINDS: tuple[str, ...] = ("ideal", "thyristor-6p", "chopper")
@@ -315,111 +308,117 @@ def size_converter(
     return ConverterSetup(arm, fld, ctrl, full_scale, rated, metadata)
 
 
-# ------------------------------------------------------------------ files and options
-
-_CHANNEL_KEYS = ("filter", "delay_s", "gain_error", "offset", "bits", "full_scale", "noise",
-                 "averaging")  # fmt: skip
+# ------------------------------------------------------------------ drive files
 
 
-def channel_changes(key: str, value: Any, where: str) -> dict[str, Any]:
-    """One chain key and its value (from TOML or an option) -> :class:`ChannelChain` fields.
+def _sensor_field(help_text: str) -> Any:
+    return dataclasses.field(default=None, metadata={"help": help_text})
 
-    ``filter`` takes the option syntax (``butter2@fs/4``); the rest are the fields themselves.
-    Raises :class:`ValueError` naming ``where.key``.
+
+@dataclass(frozen=True)
+class SensorTable:
+    """A drive file's ``[sensors.CH]``: what only a simulation knows about a channel.
+
+    ``None`` (left out) keeps the value the preset or ``[sensors]`` gave; the ranges are
+    checked by :meth:`observer.simulation.chain.ChannelChain.check`.
     """
-    if key == "filter":
-        if not isinstance(value, str):
-            raise ValueError(f"{where}.filter: must be a string like 'butter2@fs/4'")
-        try:
-            return parse_filter(value)
-        except ValueError as exc:
-            raise ValueError(f"{where}.filter: {exc}") from None
-    if key == "averaging":
-        if not isinstance(value, bool):
-            raise ValueError(f"{where}.averaging: must be true or false, got {value!r}")
-        return {"averaging": value}
-    if key == "bits":
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ValueError(f"{where}.bits: must be an integer, got {value!r}")
-        return {"bits": value}
-    if key in _CHANNEL_KEYS:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ValueError(f"{where}.{key}: must be a number, got {value!r}")
-        return {key: float(value)}
-    raise ValueError(f"{where}: unknown key {key!r} (allowed: {', '.join(_CHANNEL_KEYS)})")
+
+    bits: int | None = _sensor_field("ADC resolution, 1-24 bits")
+    full_scale: float | None = _sensor_field("bipolar ADC range +-full_scale (V, A or rad/s)")
+    noise: float | None = _sensor_field("white noise at the ADC input, fraction of rated")
+    gain_error: float | None = _sensor_field("sensor gain error (0.01: reads 1 % high)")
+    offset: float | None = _sensor_field("sensor offset (V, A or rad/s)")
 
 
-def apply_chain_table(chain: MeasurementChain, table: Mapping[str, Any]) -> MeasurementChain:
-    """``chain`` changed by a ``[chain]`` table: keys for every channel, sub-tables per channel.
+@dataclass(frozen=True)
+class SensorsTable(SensorTable):
+    """A drive file's ``[sensors]``: keys for every channel, a table per channel."""
 
-    Raises :class:`ValueError` naming ``chain.KEY`` or ``chain.CHANNEL.KEY``.
-    """
-    changes: dict[str, dict[str, Any]] = {}
-    for key, value in table.items():
-        if key in CHANNELS:
-            if not isinstance(value, Mapping):
-                raise ValueError(f"chain.{key}: must be a table [chain.{key}]")
-            per: dict[str, Any] = {}
-            for k, v in value.items():
-                per |= channel_changes(k, v, f"chain.{key}")
-            changes[key] = per
-        elif key in _CHANNEL_KEYS:
-            changes.setdefault("*", {}).update(channel_changes(key, value, "chain"))
-        else:
-            raise ValueError(
-                f"chain: unknown key {key!r} (allowed: {', '.join(_CHANNEL_KEYS)}, "
-                f"or a table per channel: {', '.join(CHANNELS)})"
-            )
-    return apply_per_channel(chain, changes)
+    va: SensorTable | None = None
+    ia: SensorTable | None = None
+    vf: SensorTable | None = None
+    i_f: SensorTable | None = dataclasses.field(default=None, metadata={"key": "if"})
+    omega: SensorTable | None = None
 
 
-def apply_converter_table(spec: ConverterSpec, table: Mapping[str, Any]) -> ConverterSpec:
-    """``spec`` changed by a ``[converter]`` table (keys: the fields of :class:`ConverterSpec`)."""
-    fields = {f.name for f in dataclasses.fields(ConverterSpec)}
-    for key, value in table.items():
-        if key not in fields:
-            raise ValueError(
-                f"converter: unknown key {key!r} (allowed: {', '.join(sorted(fields))})"
-            )
-        expect_str = key in ("armature", "field")
-        if expect_str != isinstance(value, str) or isinstance(value, bool):
-            kind = "a string" if expect_str else "a number"
-            raise ValueError(f"converter.{key}: must be {kind}, got {value!r}")
-    return dataclasses.replace(spec, **dict(table))
+def _sensor_changes(table: SensorTable) -> dict[str, Any]:
+    return {
+        f.name: getattr(table, f.name)
+        for f in dataclasses.fields(SensorTable)
+        if getattr(table, f.name) is not None
+    }
+
+
+#: The tables of a drive file besides a dcobserver config's sections (whose [chain] it reads).
+DRIVE_TABLES = ("converter", "sensors")
 
 
 def load_drive_file(path: str | os.PathLike[str], base: DriveSpec) -> DriveSpec:
-    """``base`` changed by a TOML file with ``[converter]`` and/or ``[chain]`` tables.
+    """``base`` changed by a drive file: what the file gives, nothing else.
+
+    ``[converter]`` (the fields of :class:`ConverterSpec`), ``[chain]`` (the estimator's
+    measurement chain, :class:`observer.config.ChainConfig`: ``[chain.CH]`` with ``filter``,
+    ``delay_us``, ``averaging``; ``intersample`` is the estimator's alone) and ``[sensors]``
+    (:class:`SensorsTable`). A dcobserver config is a drive file too: its ``[chain]`` is read
+    and its other sections are checked and left alone. Example:
+    ``config/drive/chain-example.toml``.
 
     Raises
     ------
     ConfigError
         One line naming the file and the key.
     """
+    from observer.config import Config, build, read_toml
+    from observer.simulation.chain import CONFIG_FIELDS, front_end_changes
+
     p = Path(path)
-    try:
-        with p.open("rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: file not found") from None
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
-    unknown = sorted(set(data) - {"converter", "chain"})
+    data = read_toml(p)
+    daemon = {f.name for f in dataclasses.fields(Config)}
+    unknown = sorted(set(data) - daemon - set(DRIVE_TABLES))
     if unknown:
-        raise ConfigError(f"{p}: unknown table [{unknown[0]}] (allowed: [converter], [chain])")
+        raise ConfigError(
+            f"{p}: unknown table [{unknown[0]}] (a drive file has [converter], [chain] and "
+            "[sensors]; a dcobserver config's sections are read too)"
+        )
+    source, base_dir = str(p), p.parent
+    config = build(
+        Config, {k: v for k, v in data.items() if k in daemon}, source=source, base_dir=base_dir
+    )
+    converter, chain = base.converter, base.chain
     try:
-        converter = base.converter
         if "converter" in data:
-            if not isinstance(data["converter"], dict):
-                raise ValueError("converter: must be a table [converter]")
-            converter = apply_converter_table(converter, data["converter"])
-        chain = base.chain
-        if "chain" in data:
-            if not isinstance(data["chain"], dict):
-                raise ValueError("chain: must be a table [chain]")
-            chain = apply_chain_table(chain, data["chain"])
-    except (ValueError, TypeError) as exc:
+            table = _table(data, "converter")
+            given = build(
+                ConverterSpec, table, source=source, base_dir=base_dir, prefix="converter"
+            )
+            converter = converter.replace(**{k: getattr(given, k) for k in table})
+        for name, raw in _table(data, "chain").items():
+            if name in CONFIG_FIELDS:  # (intersample is the estimator's alone)
+                front_end = getattr(config.chain, CONFIG_FIELDS[name])
+                chain = chain.with_channel(name, **front_end_changes(front_end, given=raw))
+        if "sensors" in data:
+            sensors = build(
+                SensorsTable,
+                _table(data, "sensors"),
+                source=source,
+                base_dir=base_dir,
+                prefix="sensors",
+            )
+            changes = {"*": _sensor_changes(sensors)}
+            for name, field in CONFIG_FIELDS.items():
+                table = getattr(sensors, field)
+                if table is not None:
+                    changes[name] = _sensor_changes(table)
+            chain = apply_per_channel(chain, changes)
+    except ConfigError:
+        raise
+    except ValueError as exc:
         raise ConfigError(f"{p}: {exc}") from None
     return DriveSpec(converter, chain)
+
+
+def _table(data: Mapping[str, Any], name: str) -> dict[str, Any]:
+    table = data.get(name, {})
+    if not isinstance(table, dict):
+        raise ValueError(f"{name}: must be a table [{name}]")
+    return table

@@ -8,12 +8,29 @@ sample-period boundary is a step boundary, and no step is longer than ``h_max`` 
 default). A current zero of the armature bridge (discontinuous conduction) and the end of a
 commutation overlap are located inside a step and the step is redone up to them.
 
-Converters (equations in ``docs/drive_chain.md``):
+Converters (the full equations, sizing and controller in ``docs/drive_chain.md``):
 
 - armature: ideal (voltage held per sample: today's simulator), a dual circulating-current-free
   6-pulse thyristor bridge, or a 4-quadrant H-bridge chopper with unipolar PWM;
 - field: ideal (held per sample), a single-phase fully controlled bridge, a 3-phase
   half-controlled bridge with freewheeling diode, or a chopper.
+
+In short (``b = +-1`` the active bridge, ``e = K if omega`` the back-EMF, ``Lc`` the source
+inductance per phase)::
+
+    armature       (La + Ls) dia/dt = u - Ra ia - e,       va = u - Ls dia/dt
+    6-pulse        u = b sqrt(2) V_LL cos(w t + phi0 - j pi/3) for the conducting pair j,
+                   fired alpha/w after its natural point; mean 1.35 V_LL cos(alpha); Ls = 2 Lc
+    overlap        u = b (u_new + u_old)/2, Ls = 1.5 Lc, until the incoming current is ia
+    DCM            b ia reaching 0 blocks the bridge: ia = 0, va = e, until a firing with
+                   b (b u_j - e) > 0
+    changeover     only at zero current, after dead_time, at a natural point
+    chopper        u in {-Vdc, 0, +Vdc}, centred unipolar PWM, mean d Vdc, pulses at 2 f_sw
+    field 1p       vf = s sqrt(2) Vs sin(w t + phi_f), s alternating per half period;
+                   mean 0.9 Vs cos(alpha), ripple at 2x mains
+    field half-3p  vf = max(u_p - min(u_a, u_b, u_c), 0); mean 1.35 V_LL (1 + cos(alpha))/2
+    filters        sections w0/(s + w0) and w0^2/(s^2 + (w0/Q) s + w0^2) per channel, states
+                   of this kernel; a sample is y(kT + delay) or its mean over the period
 
 The whole simulation state (continuous states, converter modes, controller integrators, pending
 firings and PWM edges, per-channel sample counters) lives in one float64 vector made by
@@ -28,7 +45,7 @@ import math
 import numpy as np
 from numba import njit
 
-from observer.simulation.kernels import drive_controller_step
+from observer.simulation.kernels import drive_controller_step, speed_loop
 
 # converter kinds
 ARM_IDEAL = 0
@@ -417,26 +434,6 @@ def initial_state(
 
 
 @njit(nogil=True, cache=True)
-def _speed_loop(
-    ctrl: np.ndarray, period: float, speed_ref: float, w_m: float, w_ref: float, int_w: float
-) -> tuple[float, float, float]:
-    """Ramped speed reference and speed PI with current limit -> ``(i_ref, w_ref, int_w)``."""
-    kp_w, ki_w, i_limit, ramp = ctrl[2], ctrl[3], ctrl[4], ctrl[6]
-    step = speed_ref - w_ref
-    step = min(max(step, -ramp * period), ramp * period)
-    w_ref += step
-    err_w = w_ref - w_m
-    i_ref = kp_w * err_w + int_w
-    if i_ref > i_limit:
-        i_ref = i_limit
-    elif i_ref < -i_limit:
-        i_ref = -i_limit
-    else:
-        int_w += ki_w * err_w * period
-    return i_ref, w_ref, int_w
-
-
-@njit(nogil=True, cache=True)
 def _pwm_edges(t: float, period: float, d: float, amp: float, sw_t: np.ndarray,
                sw_lv: np.ndarray) -> None:  # fmt: skip
     """Schedule one carrier period of unipolar, centred PWM with duty ``d`` in [-1, 1].
@@ -674,7 +671,7 @@ def advance(
             if_m = y[S_IF] + sig_f * _normal(seed, 3 * tick + 1)
             w_m = fx[12] * y[S_W] + sig_w * _normal(seed, 3 * tick + 2)
             tick += 1
-            i_ref, w_ref, int_w = _speed_loop(ctrl, t_pulse, speed_ref[kprof], w_m, w_ref, int_w)
+            i_ref, w_ref, int_w = speed_loop(ctrl, t_pulse, speed_ref[kprof], w_m, w_ref, int_w)
             b = mode[M_BRIDGE]
             if not inhibit and b * i_ref < -i_hyst:
                 inhibit = True  # torque reversal requested: change bridges
@@ -750,7 +747,7 @@ def advance(
                 if_m = y[S_IF] + sig_f * _normal(seed, 3 * tick + 1)
                 w_m = fx[12] * y[S_W] + sig_w * _normal(seed, 3 * tick + 2)
                 tick += 1
-                i_ref, w_ref, int_w = _speed_loop(ctrl, t_sw, speed_ref[kprof], w_m, w_ref, int_w)
+                i_ref, w_ref, int_w = speed_loop(ctrl, t_sw, speed_ref[kprof], w_m, w_ref, int_w)
                 err_i = i_ref - ia_m
                 v_ref = kp_i * err_i + int_i + k_nom * if_m * w_m
                 d = v_ref / amp_a

@@ -27,6 +27,31 @@ def _armature_mech_rhs(
 
 
 @njit(nogil=True, cache=True)
+def speed_loop(
+    control: np.ndarray, period: float, speed_ref: float, w_m: float, w_ref: float, int_w: float
+) -> tuple[float, float, float]:
+    """The speed loop of the drive's cascade, run every ``period`` s: the reference ramped at
+    ``ramp``, PI ``kp_w, ki_w`` with the current limit and anti-windup (``control`` as in
+    :func:`drive_controller_step`). Returns ``i_ref, w_ref, int_w``."""
+    kp_w, ki_w, i_limit, ramp = control[2], control[3], control[4], control[6]
+    step = speed_ref - w_ref
+    if step > ramp * period:
+        step = ramp * period
+    elif step < -ramp * period:
+        step = -ramp * period
+    w_ref += step
+    err_w = w_ref - w_m
+    i_ref = kp_w * err_w + int_w
+    if i_ref > i_limit:
+        i_ref = i_limit
+    elif i_ref < -i_limit:
+        i_ref = -i_limit
+    else:
+        int_w += ki_w * err_w * period
+    return i_ref, w_ref, int_w
+
+
+@njit(nogil=True, cache=True)
 def drive_controller_step(
     control: np.ndarray,
     k_emf: float,
@@ -47,22 +72,8 @@ def drive_controller_step(
     ``kp_i, ki_i, kp_w, ki_w, i_limit, v_limit, ramp``. Returns
     ``va, w_ref, int_w, int_i``.
     """
-    kp_i, ki_i, kp_w, ki_w = control[0], control[1], control[2], control[3]
-    i_limit, v_limit, ramp = control[4], control[5], control[6]
-    step = speed_ref - w_ref
-    if step > ramp * dt:
-        step = ramp * dt
-    elif step < -ramp * dt:
-        step = -ramp * dt
-    w_ref += step
-    err_w = w_ref - w_m
-    i_ref = kp_w * err_w + int_w
-    if i_ref > i_limit:
-        i_ref = i_limit
-    elif i_ref < -i_limit:
-        i_ref = -i_limit
-    else:
-        int_w += ki_w * err_w * dt
+    kp_i, ki_i, v_limit = control[0], control[1], control[5]
+    i_ref, w_ref, int_w = speed_loop(control, dt, speed_ref, w_m, w_ref, int_w)
     err_i = i_ref - ia_m
     va = kp_i * err_i + int_i + k_emf * if_m * w_m
     if va > v_limit:

@@ -131,21 +131,10 @@ def controller_gains(motor: MotorParameters, dt: float) -> np.ndarray:
     """Gains and limits of the drive's cascade controller (see :func:`kernels.simulate_drive`)."""
     # Current loop: closed-loop time constant a third of the armature's, but
     # not faster than 10 samples; speed loop 8x slower than the current loop.
+    from observer.simulation.converter import cascade_gains
+
     t_current = max(10 * dt, motor.armature_time_constant_s / 3)
-    t_speed = 8 * t_current
-    flux = motor.emf_constant_h * motor.rated_field_current_a
-    kp_w = motor.inertia_kgm2 / (flux * t_speed)
-    return np.array(
-        [
-            motor.armature_inductance_h / t_current,
-            motor.armature_resistance_ohm / t_current,
-            kp_w,
-            kp_w / (4 * t_speed),
-            2.0 * motor.rated_armature_current_a,
-            1.15 * motor.rated_armature_voltage_v,
-            motor.rated_speed_rad_s / 0.5,
-        ]
-    )
+    return cascade_gains(motor, t_current)[:7]  # (without the feed-forward constant)
 
 
 def simulate(

@@ -3,6 +3,8 @@ one-line errors."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from observer.cli import main
@@ -29,12 +31,12 @@ def test_realistic_preset_writes_the_drive_into_the_metadata(tmp_path):
 def test_single_options_change_the_preset_per_channel(tmp_path):
     out = tmp_path / "r.csv"
     chain = tmp_path / "chain.toml"
-    chain.write_text("[converter]\nmains_hz = 60.0\n[chain.omega]\nnoise = 0.0\n")
+    chain.write_text("[converter]\nmains_hz = 60.0\n[sensors.omega]\nnoise = 0.0\n")
     argv = [
         "simulate", str(out), "--duration", "0.5", "--rate", "4000", "--motor", "industrial-440v",
         "--preset", "realistic", "--chain", str(chain), "--converter", "chopper",
         "--field-converter", "half-3p", "--aa-filter", "bessel4@fs/8,va=rc1@500",
-        "--adc-bits", "14,ia=12", "--sample-delay", "ia=2e-5", "--averaging", "va,vf",
+        "--adc-bits", "14,ia=12", "--delay-us", "ia=20", "--averaging", "va,vf",
         "--gain-error", "ia=0.01", "--offset", "if=0.01", "--full-scale", "ia=100",
         "--switching-hz", "3000",
     ]  # fmt: skip
@@ -69,10 +71,11 @@ def test_effect_outside_the_library(tmp_path):
         (["--aa-filter", "butter6@100"], ["--aa-filter", "order must be 1..4"]),
         (["--adc-bits", "0"], ["--adc-bits", "bits", "1..24"]),
         (["--adc-bits", "va=-2"], ["--adc-bits", "va.bits"]),
+        (["--aa-filter", "va=butter2@fs/2"], ["--aa-filter", "va.filter", "Nyquist"]),
         (["--converter", "12-pulse"], ["--converter", "unknown converter '12-pulse'"]),
         (["--field-converter", "x"], ["--field-converter", "unknown field converter"]),
-        (["--sample-delay", "ia=-1e-6"], ["--sample-delay", "ia.delay_s", ">= 0"]),
-        (["--sample-delay", "if=5e-4"], ["--sample-delay", "not below one sample period"]),
+        (["--delay-us", "ia=-1"], ["--delay-us", "ia.delay_us", ">= 0"]),
+        (["--delay-us", "if=500"], ["--delay-us", "500 us is not below one sample period"]),
         (["--full-scale", "vf=0"], ["--full-scale", "vf.full_scale", "> 0"]),
         (["--mains-hz", "0"], ["--mains-hz", "1..100000"]),
         (["--dead-time", "-1"], ["--dead-time"]),
@@ -92,12 +95,59 @@ def test_bad_drive_options_are_one_line_and_exit_2(args, words, tmp_path, capsys
     assert not (tmp_path / "r.csv").exists()
 
 
-def test_the_shipped_chain_example_loads():
-    from pathlib import Path
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("[chain.ia]\nfilter = 'butter2@1500'\n", ["chain.ia.filter", "Nyquist", "--rate 2000"]),
+        ("[chain.ia]\nfilter = 'cheby2@100'\n", ["'chain.ia.filter'", "unknown filter 'cheby'"]),
+        ("[sensors]\nbits = 0\n", ["sensors.bits", "1..24"]),
+        ("[converter]\narmature = '12-pulse'\n", ["converter.armature", "12-pulse"]),
+        ("[chain]\nfilter = 'butter2@fs/4'\n", ["unknown key 'chain.filter'"]),
+    ],
+)
+def test_a_bad_drive_file_is_one_line_naming_file_and_key(text, words, tmp_path, capsys):
+    bad = tmp_path / "bad-chain.toml"
+    bad.write_text(text)
+    argv = ["simulate", str(tmp_path / "r.csv"), "--duration", "0.2", "--rate", "2000",
+            "--chain", str(bad)]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    for w in [str(bad), *words]:
+        assert w in err, err
+    assert not (tmp_path / "r.csv").exists()
 
+
+def _example() -> Path:
+    return Path(__file__).resolve().parents[2] / "config" / "drive" / "chain-example.toml"
+
+
+def test_the_shipped_chain_example_loads():
     from observer.simulation.converter import DriveSpec, load_drive_file
 
-    example = Path(__file__).resolve().parents[2] / "config" / "drive" / "chain-example.toml"
-    drive = load_drive_file(example, DriveSpec())
-    assert drive.chain["va"].averaging and drive.chain["if"].delay_s == 40e-6
+    drive = load_drive_file(_example(), DriveSpec())
+    assert drive.chain["va"].averaging and drive.chain["if"].delay_s == pytest.approx(40e-6)
+    assert drive.chain["omega"].bits == 12 and drive.converter.armature == "thyristor-6p"
     drive.chain.check_rate(2000.0)
+
+
+def test_one_chain_description_for_simulate_and_estimate(tmp_path, capsys):
+    """The example's [chain] is a dcobserver config as it stands: estimate reads what simulate
+    made the recording through."""
+    from observer.config import load_config
+    from observer.simulation.converter import DriveSpec, load_drive_file
+
+    text = _example().read_text()
+    config = tmp_path / "dcobserver.toml"
+    config.write_text(text[text.index("\n[chain]") : text.index("\n[sensors]")])
+    chain = load_config(config).chain
+    simulated = load_drive_file(_example(), DriveSpec()).chain
+    assert simulated.to_config() == chain
+    assert load_drive_file(config, DriveSpec()).chain == DriveSpec().chain.with_config(chain)
+    rec = tmp_path / "r.mcap"
+    argv = ["simulate", str(rec), "--duration", "2", "--rate", "4000", "--chain", str(_example())]
+    assert main(argv) == 0
+    argv = ["estimate", str(rec), "--circuit", "field", "--config", str(config), "--json",
+            "--particles", "20", "--iterations", "20"]  # fmt: skip
+    assert main(argv) == 0
+    assert '"field"' in capsys.readouterr().out

@@ -7,43 +7,23 @@ import math
 import numpy as np
 import pytest
 
-from observer.config import ConfigError
+from observer.config import ChainConfig, ChannelFrontEnd, ConfigError, parse_filter
+from observer.estimation.frontend import filter_sections, sections_response
 from observer.simulation.chain import (
     ChannelChain,
     MeasurementChain,
-    filter_sections,
-    frequency_response,
-    parse_filter,
     parse_per_channel,
     quantise,
 )
-from observer.simulation.converter import (
-    PRESETS,
-    ConverterSpec,
-    DriveSpec,
-    apply_chain_table,
-    load_drive_file,
+from observer.simulation.converter import PRESETS, ConverterSpec, DriveSpec, load_drive_file
+
+
+@pytest.mark.parametrize(
+    "text", ["none", "butter2@fs/4", "bessel4@1250", "rc1@fs/8", "rc3@333.5", "butter1@fs/2.5"]
 )
-
-
-def test_filter_syntax():
-    assert parse_filter("butter2@fs/4") == {
-        "filter": "butter", "order": 2, "cutoff_hz": None, "cutoff_per_fs": 0.25,
-    }  # fmt: skip
-    assert parse_filter("RC1@500Hz")["cutoff_hz"] == 500.0
-    assert parse_filter("bessel4 @ 1e3")["cutoff_hz"] == 1000.0
-    assert parse_filter("none")["filter"] == "none"
-    for bad, message in [
-        ("cheby2@500", "unknown filter 'cheby'"),
-        ("butter5@500", "order must be 1..4"),
-        ("butter@500", "no order"),
-        ("butter2", "no cutoff"),
-        ("butter2@-5", "must be > 0"),
-        ("butter2@fs/0", "divisor"),
-        ("butter2@abc", "not a number"),
-    ]:
-        with pytest.raises(ValueError, match=message):
-            parse_filter(bad)
+def test_a_channel_writes_its_filter_in_the_grammar_it_was_read_from(text):
+    ch = ChannelChain(**parse_filter(text))
+    assert parse_filter(ch.filter_text()) == parse_filter(text)
 
 
 def test_per_channel_syntax():
@@ -65,15 +45,15 @@ def test_per_channel_syntax():
         ({"filter": "butter", "order": 0, "cutoff_hz": 5.0}, "chain.ia.order"),
         ({"filter": "butter", "order": 2}, "chain.ia.cutoff_hz"),
         ({"filter": "butter", "order": 2, "cutoff_hz": -1.0}, "chain.ia.cutoff_hz"),
-        ({"bits": 0}, "chain.ia.bits"),
-        ({"bits": -3}, "chain.ia.bits"),
-        ({"bits": 40}, "chain.ia.bits"),
-        ({"full_scale": 0.0}, "chain.ia.full_scale"),
-        ({"full_scale": -2.0}, "chain.ia.full_scale"),
-        ({"delay_s": -1e-6}, "chain.ia.delay_s"),
-        ({"noise": -0.1}, "chain.ia.noise"),
-        ({"gain_error": -1.0}, "chain.ia.gain_error"),
-        ({"offset": math.nan}, "chain.ia.offset"),
+        ({"bits": 0}, "sensors.ia.bits"),
+        ({"bits": -3}, "sensors.ia.bits"),
+        ({"bits": 40}, "sensors.ia.bits"),
+        ({"full_scale": 0.0}, "sensors.ia.full_scale"),
+        ({"full_scale": -2.0}, "sensors.ia.full_scale"),
+        ({"delay_s": -1e-6}, "chain.ia.delay_us"),
+        ({"noise": -0.1}, "sensors.ia.noise"),
+        ({"gain_error": -1.0}, "sensors.ia.gain_error"),
+        ({"offset": math.nan}, "sensors.ia.offset"),
     ],
 )
 def test_impossible_channel_values_name_their_key(changes, key):
@@ -86,13 +66,15 @@ def test_impossible_channel_values_name_their_key(changes, key):
 def test_rate_dependent_checks_name_their_key():
     chain = MeasurementChain().with_channel("if", filter="butter", order=2, cutoff_hz=1500.0)
     chain.check_rate(4000.0)
-    with pytest.raises(ValueError, match=r"^chain\.if\.cutoff_hz: cutoff 1500 Hz is above"):
+    with pytest.raises(ValueError, match=r"^chain\.if\.filter: cutoff 1500 Hz is at or above"):
         chain.check_rate(2000.0)
+    with pytest.raises(ValueError, match=r"^chain\.if\.filter: cutoff 1500 Hz is at or above"):
+        chain.check_rate(3000.0)  # the estimator's limit: below Nyquist
     delayed = MeasurementChain().with_channel("va", delay_s=5e-4)
     delayed.check_rate(1000.0)
-    with pytest.raises(ValueError, match=r"^chain\.va\.delay_s: .* not below one sample period"):
+    with pytest.raises(ValueError, match=r"^chain\.va\.delay_us: 500 us is not below one sample"):
         delayed.check_rate(2000.0)
-    with pytest.raises(ValueError, match=r"^chain\.va\.cutoff_per_fs"):
+    with pytest.raises(ValueError, match=r"^chain\.va\.filter"):
         MeasurementChain.uniform(ChannelChain("rc", 1, cutoff_per_fs=0.75)).check_rate(1e3)
 
 
@@ -115,7 +97,7 @@ def test_converter_spec_errors_name_their_key():
 def test_every_filter_is_3db_down_at_its_cutoff(kind, order):
     sections = filter_sections(kind, order, 700.0)
     assert np.count_nonzero(sections[:, 0]) == (order + 1) // 2
-    h = frequency_response(sections, np.array([0.0, 700.0, 7000.0]))
+    h = sections_response(sections, np.array([0.0, 700.0, 7000.0]))
     assert abs(h[0]) == pytest.approx(1.0, abs=1e-12)
     assert abs(h[1]) == pytest.approx(1 / math.sqrt(2), rel=2e-6)
     # and it falls off as its order beyond the cutoff
@@ -132,32 +114,86 @@ def test_quantise_is_exact_and_saturates():
     assert np.all(np.abs(q[2:-2] - x[2:-2]) <= lsb / 2)
 
 
-def test_chain_file_keys_and_errors(tmp_path):
-    chain = apply_chain_table(
-        MeasurementChain(), {"filter": "butter2@fs/4", "bits": 12, "va": {"filter": "rc1@500"}}
-    )
-    assert chain["va"].filter == "rc" and chain["va"].cutoff_hz == 500.0
-    assert chain["omega"].filter == "butter" and chain["omega"].bits == 12
+def test_a_drive_file_changes_only_what_it_gives(tmp_path):
+    base = PRESETS["realistic"]
+    assert base is not None
     good = tmp_path / "good.toml"
-    good.write_text('[converter]\narmature = "chopper"\n[chain.ia]\ndelay_s = 1e-5\n')
-    drive = load_drive_file(good, DriveSpec())
-    assert drive.converter.armature == "chopper" and drive.chain["ia"].delay_s == 1e-5
-    for text, words in [
-        ("[chain]\nbits = 0\n", ["bad.toml", "chain.bits"]),
-        ("[chain.vf]\nfilter = 'butter9@500'\n", ["bad.toml", "chain.vf.filter", "1..4"]),
-        ("[chain.vf]\nfull_scale = 0\n", ["bad.toml", "chain.vf.full_scale"]),
-        ("[chain]\nbitz = 3\n", ["bad.toml", "unknown key 'bitz'"]),
-        ("[converter]\narmature = 'x'\n", ["bad.toml", "converter.armature", "unknown"]),
-        ("[converter]\nmains_hz = 'fifty'\n", ["bad.toml", "converter.mains_hz"]),
-        ("[drive]\n", ["bad.toml", "unknown table [drive]"]),
-        ("[chain\n", ["bad.toml", "TOML"]),
-    ]:
-        bad = tmp_path / "bad.toml"
-        bad.write_text(text)
-        with pytest.raises(ConfigError) as exc:
-            load_drive_file(bad, DriveSpec())
-        assert all(w in str(exc.value) for w in words), str(exc.value)
-        assert "\n" not in str(exc.value)
+    good.write_text(
+        '[converter]\narmature = "chopper"\n'
+        '[chain.ia]\ndelay_us = 10.0\n[chain.va]\nfilter = "rc1@500"\n'
+        "[sensors]\nbits = 14\n[sensors.if]\nnoise = 0.0\n"
+    )
+    drive = load_drive_file(good, base)
+    assert (drive.converter.armature, drive.converter.field) == ("chopper", "bridge-1p")
+    va, ia, i_f = drive.chain["va"], drive.chain["ia"], drive.chain["if"]
+    assert (va.filter, va.order, va.cutoff_hz, va.bits) == ("rc", 1, 500.0, 14)
+    assert (ia.filter, ia.cutoff_per_fs, ia.delay_s) == ("butter", 0.25, 1e-5)
+    assert (i_f.noise, drive.chain["omega"].noise) == (0.0, None)
+
+
+def test_a_dcobserver_config_is_a_drive_file(tmp_path):
+    config = tmp_path / "dcobserver.toml"
+    config.write_text('[estimate]\nparticles = 50\n[chain]\nintersample = "hold"\n'
+                      '[chain.va]\nfilter = "bessel2@800"\n')  # fmt: skip
+    drive = load_drive_file(config, DriveSpec())
+    assert (drive.chain["va"].filter, drive.chain["va"].cutoff_hz) == ("bessel", 800.0)
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("[sensors]\nbits = 0\n", ["sensors.bits", "1..24"]),
+        ("[sensors.if]\nbits = 2.5\n", ["sensors.if.bits", "integer"]),
+        ("[chain.vf]\nfilter = 'butter9@500'\n", ["chain.vf.filter", "1..4"]),
+        ("[chain.ia]\ndelay_us = -3\n", ["chain.ia.delay_us", ">= 0"]),
+        ("[sensors.vf]\nfull_scale = 0\n", ["sensors.vf.full_scale"]),
+        ("[chain]\nbits = 3\n", ["unknown key 'chain.bits'"]),
+        ("[chain]\nfilter = 'butter2@fs/4'\n", ["unknown key 'chain.filter'"]),
+        ("[chain.ia]\ndelay_s = 1e-5\n", ["unknown key 'chain.ia.delay_s'", "delay_us"]),
+        ("[sensors.ib]\nbits = 3\n", ["unknown key 'sensors.ib'"]),
+        ("[converter]\narmature = 'x'\n", ["converter.armature", "unknown"]),
+        ("[converter]\nmains_hz = 'fifty'\n", ["converter.mains_hz", "number"]),
+        ("[converter]\nmains = 50\n", ["unknown key 'converter.mains'"]),
+        ("[drive]\n", ["unknown table [drive]"]),
+        ("[chain\n", ["TOML"]),
+    ],
+)
+def test_bad_drive_files_name_the_file_and_the_key(tmp_path, text, words):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_drive_file(bad, DriveSpec())
+    message = str(exc.value)
+    assert message.startswith(str(bad)) and "\n" not in message
+    assert all(w in message for w in words), message
+
+
+def test_the_estimator_is_given_the_chain_the_simulator_used():
+    from observer.estimation.frontend import winding_front_ends
+
+    chain = (
+        MeasurementChain.uniform(ChannelChain("butter", 2, cutoff_per_fs=0.25, bits=12))
+        .with_channel(
+            "va", filter="rc", order=1, cutoff_hz=500.0, cutoff_per_fs=None, averaging=True
+        )
+        .with_channel("ia", delay_s=2e-5, gain_error=0.01)
+    )
+    config = chain.to_config()
+    assert config.va == ChannelFrontEnd(filter="rc1@500", delay_us=0.0, averaging=True)
+    assert config.i_f == ChannelFrontEnd(filter="butter2@fs/4")
+    fronts = winding_front_ends(config, "armature")
+    assert fronts is not None
+    for front, name in zip(fronts, ("va", "ia"), strict=True):
+        ch = chain[name]
+        assert (front.filter, front.order, front.cutoff_hz, front.cutoff_per_fs) == (
+            ch.filter, ch.order, ch.cutoff_hz, ch.cutoff_per_fs,
+        )  # fmt: skip
+        assert front.delay_s == pytest.approx(ch.delay_s) and front.averaging == ch.averaging
+    # and back: what the estimator knows, the simulator reads (not the sensors)
+    back = MeasurementChain().with_config(config)
+    assert back["ia"].delay_s == pytest.approx(2e-5) and back["ia"].gain_error == 0.0
+    assert back["va"].filter_text() == "rc1@500" and back["va"].averaging
+    assert MeasurementChain().with_config(ChainConfig()) == MeasurementChain()
 
 
 def test_the_realistic_preset_is_what_the_issue_names():
