@@ -238,15 +238,15 @@ class SourceConfig:
 
 @dataclass(frozen=True)
 class QualityConfig:
-    """Largest one-sigma relative uncertainty for a window to move a parameter.
+    """Largest one-sigma relative uncertainty for a window's fit to count as evidence.
 
     The uncertainty is the estimator's ``std``: noise (sandwich covariance),
     the errors-in-variables correction and the model error its specification
     test finds (see :mod:`observer.estimation.stages`). A parameter published
     as ``ok`` should be within its tolerance of the truth: the defaults are
     the issue's tolerances divided by 2.5 (Rf, Lf, K 1 %, Ra 2 %, La 5 %). A
-    parameter whose window does not identify it this well is held at its last
-    accepted value (quality ``"held"``) instead of moving.
+    parameter whose window does not identify it this well does not update the
+    tracked state (quality ``"held"``): the tracker only carries it forward.
     """
 
     R: float = dataclasses.field(
@@ -274,15 +274,82 @@ class QualityConfig:
 
 @dataclass(frozen=True)
 class AgreeConfig:
-    """Relative change between windows still taken as agreement, per parameter.
+    """Relative difference of a window's fit from the tracked value still taken as agreement.
 
-    A larger change is a jump: it widens the search and must be confirmed by
-    ``confirm_windows`` windows in a row before it is reported.
+    A larger one widens the next window's swarm search around the tracked value
+    (whether the parameter changed is for the tracker's change test to say).
     """
 
     R: float = dataclasses.field(default=0.03, metadata={"check": _positive})
     L: float = dataclasses.field(default=0.10, metadata={"check": _positive})
     K: float = dataclasses.field(default=0.03, metadata={"check": _positive})
+
+
+def _non_negative(x: Any) -> str | None:
+    return None if x >= 0 else f"must be >= 0, got {x!r}"
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """The tracked motor state behind the window fits (:mod:`observer.service.tracker`).
+
+    Process noise from physical rates, as the one-sigma relative change of a
+    random walk per minute; change detection; optional thermal models; the
+    winding temperature's reference.
+    """
+
+    # How far a resistance wanders per minute beyond its tracked rate of change.
+    R_drift_per_min: float = dataclasses.field(default=0.005, metadata={"check": _positive})
+    # Typical largest rate of change of a resistance (fraction per minute: heating
+    # at full load); the tracked rate starts within it and wanders about this much per minute.
+    R_rate_per_min: float = dataclasses.field(default=0.05, metadata={"check": _positive})
+    # Inductances (saturation with the operating point) and the EMF constant drift slowly.
+    L_drift_per_min: float = dataclasses.field(default=0.01, metadata={"check": _positive})
+    K_drift_per_min: float = dataclasses.field(default=0.005, metadata={"check": _positive})
+    # A window whose fit is further than this many sigma from the tracked state
+    # does not update it (it still counts towards a change).
+    gate_sigma: float = dataclasses.field(default=4.0, metadata={"check": _positive})
+    # Smallest step announced as a change (relative); smaller ones are tracked.
+    min_change_R: float = dataclasses.field(default=0.01, metadata={"check": _positive})
+    min_change_L: float = dataclasses.field(default=0.05, metadata={"check": _positive})
+    min_change_K: float = dataclasses.field(default=0.01, metadata={"check": _positive})
+    # Log-likelihood ratio (CUSUM) that confirms a change.
+    change_threshold: float = dataclasses.field(default=10.0, metadata={"check": _positive})
+    # Longest wait (s) after a change is confirmed for a window that shows its size.
+    change_wait_s: float = dataclasses.field(default=3.0, metadata={"check": _positive})
+    # Thermal time constants of the windings (s), motor data; 0: no thermal model,
+    # the resistance is tracked as a level with a rate of change.
+    field_thermal_tau_s: float = dataclasses.field(default=0.0, metadata={"check": _non_negative})
+    armature_thermal_tau_s: float = dataclasses.field(
+        default=0.0, metadata={"check": _non_negative}
+    )
+    # Winding resistances at the reference temperature (ohm); 0: no temperature published.
+    field_r_ref_ohm: float = dataclasses.field(default=0.0, metadata={"check": _non_negative})
+    armature_r_ref_ohm: float = dataclasses.field(default=0.0, metadata={"check": _non_negative})
+    reference_c: float = 20.0
+    alpha_per_k: float = dataclasses.field(default=0.00393, metadata={"check": _positive})
+
+
+@dataclass(frozen=True)
+class SpeedConfig:
+    """EMF speed and the tachometer cross-check (:mod:`observer.service.speed`)."""
+
+    # Raise a tachometer event when the measured speed reads below the EMF speed.
+    check_tachometer: bool = True
+    # Model error of the EMF speed (relative) on top of its statistical uncertainty.
+    tolerance: float = dataclasses.field(default=0.02, metadata={"check": _positive})
+    # A window disagrees when the measured speed is below the EMF speed by more than
+    # tolerance * |EMF speed| + n_sigma * sigma.
+    n_sigma: float = dataclasses.field(default=4.0, metadata={"check": _positive})
+    # Only windows where a reading this much low (relative) would show count, for or against.
+    min_loss: float = dataclasses.field(default=0.05, metadata={"check": _fraction})
+    # Disagreement this long (s) raises the event (and as long an agreement clears it).
+    alarm_s: float = dataclasses.field(default=0.5, metadata={"check": _positive})
+    # Without a speed channel the armature is not estimated (K and the speed cannot be
+    # told apart): the EMF speed then uses these (0: no EMF speed).
+    Ra_ohm: float = dataclasses.field(default=0.0, metadata={"check": _non_negative})
+    La_h: float = dataclasses.field(default=0.0, metadata={"check": _non_negative})
+    K_h: float = dataclasses.field(default=0.0, metadata={"check": _non_negative})
 
 
 @dataclass(frozen=True)
@@ -314,7 +381,6 @@ class ObserverConfig:
     max_range_factor: float = dataclasses.field(default=4.0, metadata={"check": _above_one})
     shrink: float = dataclasses.field(default=0.7, metadata={"check": _fraction})
     widen: float = dataclasses.field(default=3.0, metadata={"check": _above_one})
-    confirm_windows: int = dataclasses.field(default=3, metadata={"min": 1})
     degrade_ratio: float = dataclasses.field(default=2.0, metadata={"check": _above_one})
     min_field_taus: float = dataclasses.field(default=3.0, metadata={"check": _positive})
     max_gap_periods: float = dataclasses.field(default=3.0, metadata={"check": _above_one})
@@ -332,6 +398,8 @@ class ObserverConfig:
     )
     quality: QualityConfig = QualityConfig()
     agree: AgreeConfig = AgreeConfig()
+    tracker: TrackerConfig = TrackerConfig()
+    speed: SpeedConfig = SpeedConfig()
 
     def __post_init__(self) -> None:
         if self.hop_s > self.window_s:

@@ -24,8 +24,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def format_estimate(e: dict[str, Any]) -> str:
-    """One log line per estimate: values in engineering units with their quality
-    (ok/held/unconfirmed/none), e.g. ``armature: Ra=3.501 ohm (ok), La=20.1 mH (held)``."""
+    """One log line per estimate: tracked values in engineering units with their quality
+    (ok/held/outlier/change/none), e.g. ``armature: Ra=3.501 ohm (ok), La=20.1 mH (held)``,
+    then the winding temperatures and the EMF speed."""
     from observer.commands.display import NAMES, UNITS, eng
 
     parts = [f"window {e.get('index')} t={e['t_ns'] / 1e9:.2f}s"]
@@ -39,6 +40,12 @@ def format_estimate(e: dict[str, Any]) -> str:
                 q = c.get("quality", {}).get(p, "?")
                 items.append(f"{NAMES[(circuit, p)]}={eng(c[p], UNITS[p])} ({q})")
         parts.append(f"{circuit}: " + ", ".join(items))
+    temps = [f"{c} {t['C']:.1f} C" for c, t in (e.get("temperature") or {}).items()]
+    if temps:
+        parts.append("T " + ", ".join(temps))
+    emf = (e.get("speed") or {}).get("emf_rad_s")
+    if emf is not None:
+        parts.append(f"EMF speed {emf:.1f} rad/s")
     parts.append(f"{e.get('elapsed_ms', 0):.0f} ms")
     return " | ".join(parts)
 

@@ -28,7 +28,10 @@ QUALITY_ORDER = ("ok", "change", "outlier", "unconfirmed", "held", "none")
 QUALITY_MARK = {
     "ok": " ", "change": "c", "outlier": "o", "unconfirmed": "?", "held": "h", "none": "-",
 }  # fmt: skip
-LEGEND = "h: held, ?: unconfirmed, c: change being confirmed, o: outlier, -: none"
+LEGEND = (
+    "h: held, ?: unconfirmed, c: change being confirmed, o: outlier, -: none; "
+    "±: relative std %; speeds rad/s, !: tachometer fault, n: no speed channel"
+)
 #: (column title, circuit, parameter) of the values shown.
 VALUES = (
     ("Rf ohm", "field", "R"),
@@ -116,12 +119,27 @@ def _number(v: Any) -> str:
 
 
 def _value(e: dict[str, Any], circuit: str, param: str) -> str:
+    """The tracked value, its quality mark and its relative std (%)."""
     c = e.get(circuit) or {}
     value = c.get(param)
     mark = (
         QUALITY_MARK.get((c.get("quality") or {}).get(param, ""), " ") if value is not None else " "
     )
-    return f"{_number(value):>10}{mark}"
+    std = (c.get("std") or {}).get(param)
+    rel = ""
+    if isinstance(value, int | float) and isinstance(std, int | float) and value:
+        rel = f"{100 * std / abs(value):.2f}"
+    return f"{_number(value):>10}{mark}{rel:>6}"
+
+
+def _speeds(e: dict[str, Any]) -> str:
+    """EMF speed and measured speed (rad/s), then ``!`` a tachometer fault, ``n`` no channel."""
+    speed = e.get("speed") or {}
+    emf, measured = speed.get("emf_rad_s"), speed.get("measured_rad_s")
+    mark = {"fault": "!", "none": "n"}.get(str(speed.get("tachometer", "")), " ")
+    emf_text = f"{emf:.1f}" if isinstance(emf, int | float) else "-"
+    measured_text = f"{measured:.1f}" if isinstance(measured, int | float) else "-"
+    return f"{emf_text:>7} {measured_text:>7}{mark}"
 
 
 def _temperature(e: dict[str, Any], circuit: str) -> str:
@@ -156,8 +174,8 @@ def names_of(key_expr: str, message: dict[str, Any]) -> tuple[str, str, str]:
 
 LINE_HEADER = (
     f"{'drive':<12} {'motor':<8} {'t (s)':>9} "
-    + " ".join(f"{title:>11}" for title, _c, _p in VALUES)
-    + f" {'Tf C':>6} {'Ta C':>6}    ({LEGEND})"
+    + " ".join(f"{title + ' ±':>17}" for title, _c, _p in VALUES)
+    + f" {'Tf C':>6} {'Ta C':>6} {'w_emf':>7} {'w_meas':>8}    ({LEGEND})"
 )
 
 
@@ -167,12 +185,14 @@ def format_line(key_expr: str, message: dict[str, Any]) -> str:
     head = f"{drive:<12} {motor:<8}"
     if leaf == "health":
         return f"{head} health: {', '.join(message.get('flags') or []) or 'ok'}"
+    if leaf == "event":
+        return f"{head} {message.get('t_ns', 0) / 1e9:>9.2f} EVENT {message.get('message', '')}"
     if leaf not in ("estimate", "latest"):
         return f"{head} {leaf}: {json.dumps(message)[:100]}"
     t = message.get("t_ns", 0) / 1e9
     cells = " ".join(_value(message, c, p) for _title, c, p in VALUES)
     temps = f"{_temperature(message, 'field'):>6} {_temperature(message, 'armature'):>6}"
-    return f"{head} {t:>9.2f} {cells} {temps}"
+    return f"{head} {t:>9.2f} {cells} {temps} {_speeds(message)}"
 
 
 @dataclass
@@ -188,8 +208,9 @@ class FleetTable:
 
     HEADER = (
         f"{'drive':<12} {'motor':<8} "
-        + " ".join(f"{title:>11}" for title, _c, _p in VALUES)
-        + f" {'Tf C':>6} {'Ta C':>6} {'quality':<11} {'age s':>6}  health"
+        + " ".join(f"{title + ' ±':>17}" for title, _c, _p in VALUES)
+        + f" {'Tf C':>6} {'Ta C':>6} {'w_emf':>7} {'w_meas':>8} {'quality':<11} {'age s':>6}"
+        + "  health"
     )
 
     def __init__(self) -> None:
@@ -215,7 +236,8 @@ class FleetTable:
             age = "-" if row.received is None else f"{now - row.received:.1f}"
             status = row.health + (f"; last event: {row.event}" if row.event else "")
             lines.append(
-                f"{drive:<12} {motor:<8} {cells} {temps} {quality(e):<11} {age:>6}  {status}"
+                f"{drive:<12} {motor:<8} {cells} {temps} {_speeds(e)} {quality(e):<11} "
+                f"{age:>6}  {status}"
             )
         lines.append(f"({LEGEND}; age: seconds since the last estimate arrived)")
         return lines

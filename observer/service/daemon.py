@@ -276,8 +276,18 @@ class Daemon:
         self.latencies_ms.append((time.monotonic_ns() - result.arrival_ns) / 1e6)
         if self.mcap is not None:
             self.mcap.submit_json("/estimate", estimate)
+        for event in result.events:
+            self._emit_event(event)
         if self.on_estimate is not None:
             self.on_estimate(estimate)
+
+    def _emit_event(self, event: dict[str, Any]) -> None:
+        """A change or tachometer alarm: Zenoh ``event``, the MCAP ``/event`` topic, the log."""
+        event = {**self.ids, **event}
+        self.zenoh.publish("event", to_json(event))
+        if self.mcap is not None:
+            self.mcap.submit_json("/event", event)
+        log.warning("event: %s", event["message"])
 
     # ------------------------------------------------------------------ health
 

@@ -13,7 +13,9 @@ protobuf blocks of :mod:`observer.recording.sample_proto` (ADC counts with
 their scale where the source knows them, float64 otherwise), so ``dcobserver
 estimate``, ``dcobserver replay`` and the replay source read daemon logs and
 reproduce the live numbers exactly. Estimates and health go on ``/estimate``
-and ``/health`` as JSON with a JSON schema each (Foxglove plots them).
+and ``/health``, confirmed changes and tachometer alarms on ``/event``
+(``log_time``: when they were published), as JSON with a JSON schema each
+(Foxglove plots them).
 
 Each file describes itself in metadata records: :data:`LOG_METADATA`
 (software, version, drive and motor ids, host, time base),
@@ -89,6 +91,7 @@ _RETENTION_EVERY_S: Final = 60.0
 
 ESTIMATE_TOPIC = "/estimate"
 HEALTH_TOPIC = "/health"
+EVENT_TOPIC = "/event"
 
 _PARAM = {"type": ["number", "null"]}
 _CIRCUIT_SCHEMA: dict[str, Any] = {
@@ -98,18 +101,69 @@ _CIRCUIT_SCHEMA: dict[str, Any] = {
         "L": {**_PARAM, "description": "Inductance (H)."},
         "K": {**_PARAM, "description": "EMF constant (V*s/(rad*A)); armature only."},
         "rms": {**_PARAM, "description": "RMS current error of the window's fit (A)."},
+        "std": {
+            "type": "object",
+            "description": "One-sigma of the tracked R, L, K (same units).",
+            "additionalProperties": _PARAM,
+        },
         "quality": {
             "type": "object",
-            "description": "Per parameter: ok, held (window does not identify it), "
-            "unconfirmed (a jump not yet confirmed), none (never identified yet).",
-            "additionalProperties": {"enum": ["ok", "held", "unconfirmed", "none"]},
+            "description": "Per parameter: ok (this window updated the tracked value), held "
+            "(the window is no evidence for it: carried forward), outlier (too far from the "
+            "tracked value to update it), change (a change being confirmed: frozen), none "
+            "(no evidence yet).",
+            "additionalProperties": {"enum": ["ok", "held", "outlier", "change", "none"]},
+        },
+        "raw": {
+            "type": "object",
+            "description": "This window's own fit of R, L, K (for diagnosis and replay).",
+            "additionalProperties": _PARAM,
         },
         "rel_std": {
             "type": "object",
-            "description": "One-sigma relative Cramer-Rao uncertainty in this window.",
+            "description": "One-sigma relative uncertainty of this window's own fit.",
+            "additionalProperties": _PARAM,
+        },
+        "rate_per_min": {
+            "type": "object",
+            "description": "Tracked relative rate of change of R per minute.",
             "additionalProperties": _PARAM,
         },
     },
+}
+_WINDING_TEMPERATURE = {
+    "type": "object",
+    "properties": {
+        "C": {"type": "number", "description": "Winding temperature (deg C) from the tracked R."},
+        "std": {"type": "number", "description": "Its one-sigma (K)."},
+    },
+}
+_EVENT_PROPERTIES: dict[str, Any] = {
+    "drive_id": {"type": "string"},
+    "kind": {"enum": ["change", "tachometer"]},
+    "t_ns": {"type": "integer", "description": "End of the window that raised it (ns)."},
+    "message": {"type": "string"},
+    "parameter": {"type": "string", "description": "change: Rf, Lf, Ra, La or K."},
+    "relative": {
+        "type": "number",
+        "description": "change: size (after/before - 1); tachometer: measured/EMF speed - 1.",
+    },  # fmt: skip
+    "relative_std": {"type": "number"},
+    "before": {"type": "number"},
+    "after": {"type": "number"},
+    "t_change_ns": {"type": "integer", "description": "change: when it happened (ns)."},
+    "state": {"enum": ["fault", "cleared"], "description": "tachometer"},
+    "since_ns": {"type": "integer", "description": "tachometer: disagreement since (ns)."},
+    "measured_rad_s": {"type": "number"},
+    "emf_rad_s": {"type": "number"},
+}
+EVENT_SCHEMA: dict[str, Any] = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "dcobserver.Event",
+    "description": "A confirmed change of a parameter, or a tachometer alarm raised or cleared.",
+    "type": "object",
+    "properties": _EVENT_PROPERTIES,
+    "required": ["kind", "t_ns", "message"],
 }
 ESTIMATE_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -134,6 +188,30 @@ ESTIMATE_SCHEMA: dict[str, Any] = {
         "elapsed_ms": {"type": "number", "description": "Estimation time (ms)."},
         "field": _CIRCUIT_SCHEMA,
         "armature": _CIRCUIT_SCHEMA,
+        "temperature": {
+            "type": "object",
+            "description": "Winding temperatures from the tracked resistances (where a "
+            "reference resistance is configured).",
+            "properties": {"field": _WINDING_TEMPERATURE, "armature": _WINDING_TEMPERATURE},
+        },
+        "speed": {
+            "type": "object",
+            "description": "EMF speed from the tracked armature parameters beside the "
+            "measured speed (flux-weighted window means, rad/s).",
+            "properties": {
+                "emf_rad_s": _PARAM,
+                "std_rad_s": _PARAM,
+                "measured_rad_s": _PARAM,
+                "measured_std_rad_s": _PARAM,
+                "tachometer": {"enum": ["ok", "fault", "none"]},
+                "note": {"type": "string"},
+            },
+        },
+        "events": {
+            "type": "array",
+            "description": "Events raised by this window (also on /event).",
+            "items": {"type": "object", "properties": _EVENT_PROPERTIES},
+        },
         "flags": {"type": "array", "items": {"type": "string"}},
     },
     "required": ["t_ns", "window"],
@@ -194,7 +272,7 @@ def _channels_metadata(scales: Mapping[str, AdcScale]) -> dict[str, str]:
 
 
 class _File:
-    """One open MCAP file with its three channels and its metadata records.
+    """One open MCAP file with its channels and its metadata records.
 
     Written under a temporary name (:class:`observer.recording.AtomicFile`) and
     renamed to ``path`` by :meth:`finish` once complete, so a file under a
@@ -221,7 +299,11 @@ class _File:
                 SAMPLES_SCHEMA_NAME, PROTO_ENCODING, proto_schema_data()
             )
             ids[SAMPLES_TOPIC] = self.writer.register_channel(SAMPLES_TOPIC, PROTO_ENCODING, sid)
-            for topic, schema in ((ESTIMATE_TOPIC, ESTIMATE_SCHEMA), (HEALTH_TOPIC, HEALTH_SCHEMA)):
+            for topic, schema in (
+                (ESTIMATE_TOPIC, ESTIMATE_SCHEMA),
+                (HEALTH_TOPIC, HEALTH_SCHEMA),
+                (EVENT_TOPIC, EVENT_SCHEMA),
+            ):
                 sid = self.writer.register_schema(
                     schema["title"], "jsonschema", json.dumps(schema).encode()
                 )
@@ -365,7 +447,10 @@ class McapLog:
         self._put(("samples", int(arrival_wall_ns[0]) if len(t_ns) else 0, payload))
 
     def submit_json(self, topic: str, obj: Any, log_time_ns: int | None = None) -> None:
-        """Queue a JSON message on ``/estimate`` or ``/health``, log time wall clock (now)."""
+        """Queue a JSON message on ``/estimate``, ``/health`` or ``/event``.
+
+        Its log time is wall clock, now unless given.
+        """
         self._put((topic, time.time_ns() if log_time_ns is None else log_time_ns, obj))
 
     def _put(self, item: tuple[str, int, Any]) -> None:

@@ -8,17 +8,22 @@ start depends only on earlier windows, so a replay of a log gives the same
 numbers as the live daemon did (as long as the live daemon kept up: a window
 it had to skip because it fell behind is counted in ``late``).
 
-Warm start: each circuit's swarm starts from the last accepted ``(R, L)``, most
+Each window's fits are measurements for the tracker
+(:class:`observer.service.tracker.MotorTracker`): the values published are the
+tracked state with its std, the window's own fit rides along as ``raw``. A
+parameter whose relative std in this window exceeds its
+``[observer.quality]`` limit (e.g. ``Lf`` under a constant field voltage), or
+a window the estimator says its model does not describe, is no evidence: the
+tracker carries the parameter forward (``quality = "held"``). Confirmed changes
+and a tachometer that reads low (:mod:`observer.service.speed`) are events;
+the winding temperatures and the EMF speed come from the tracked state.
+
+Warm start: each circuit's swarm starts from the tracked ``(R, L)``, most
 particles inside ``around(R, L, factor)`` of the full data-derived range and a
 fraction ``explore_fraction`` spread over the whole range, so a real change is
-caught. ``factor`` shrinks while successive estimates agree and widens (and the
-next window runs the cold, larger swarm) when the fit degrades or the
-parameters jump.
-
-Per-parameter quality: a parameter whose relative Cramer-Rao uncertainty in
-this window exceeds its limit is not identified by the window (e.g. ``Lf``
-under a constant field voltage): it is *held* at its last accepted value and
-reported with ``quality = "held"`` and the window's ``rel_std``.
+caught. ``factor`` shrinks while the fits agree with the tracked state and
+widens (and the next window runs the cold, larger swarm) when the fit degrades
+or differs by more than ``[observer.agree]``.
 
 Measurement chain: each circuit's intersample model (how the voltage behaves
 between samples, :mod:`observer.estimation.intersample`) and the relative delay
@@ -60,26 +65,34 @@ from observer.estimation import (
 from observer.estimation.frontend import winding_front_ends
 from observer.estimation.motor import MotorParameters
 from observer.service.ringbuffer import RingBuffer, Window
+from observer.service.speed import SpeedEstimate, TachometerCheck, emf_speed
+from observer.service.tracker import (
+    LOCATION,
+    PARAMETERS,
+    Evidence,
+    MotorTracker,
+    TrackerStep,
+    winding_temperature,
+)
 
 log = logging.getLogger(__name__)
 
 _NS = 1_000_000_000
 CIRCUIT_PARAMS = {"field": ("R", "L"), "armature": ("R", "L", "K")}
+#: circuit -> {letter: tracked parameter name}
+CIRCUIT_NAMES = {
+    c: {p: name for name, (cc, p) in LOCATION.items() if cc == c} for c in ("field", "armature")
+}
 _CIRCUIT_INDEX = {"field": 0, "armature": 1}
 
 
 @dataclass
-class _Tracker:
-    """Warm-start state of one circuit."""
+class _Search:
+    """Warm-start state of one circuit's swarm."""
 
-    accepted: dict[str, float] = field(default_factory=dict)
     factor: float | None = None  # None: next window runs cold over the full range
+    warm: bool = False  # whether the last window was warm-started
     rms_history: deque[float] = field(default_factory=lambda: deque(maxlen=20))
-    # Values of a parameter that jumped from its accepted value, awaiting confirmation.
-    candidates: dict[str, deque[float]] = field(default_factory=dict)
-    # Recent accepted values per parameter: jumps are measured from their median,
-    # so a slow slide of small biased steps is caught too.
-    recent: dict[str, deque[float]] = field(default_factory=dict)
 
 
 @dataclass
@@ -123,6 +136,7 @@ class WindowResult:
     estimate: dict[str, Any] | None
     skip_reason: str = ""
     arrival_ns: int = 0  # host monotonic time the window's last sample reached the ring
+    events: tuple[dict[str, Any], ...] = ()  # changes and tachometer alarms of this window
 
 
 def check_window(window: Window, max_gap_periods: float) -> tuple[str, float]:
@@ -201,7 +215,12 @@ class SlidingWindowObserver:
         self.window_ns = int(round(config.window_s * _NS))
         self.hop_ns = int(round(config.hop_s * _NS))
         self.circuits = ("field", "armature") if config.circuits == "both" else (config.circuits,)
-        self._trackers = {c: _Tracker() for c in self.circuits}
+        self._search = {c: _Search() for c in self.circuits}
+        limits = {name: config.quality.limits(c)[p] for name, (c, p) in LOCATION.items()}
+        self.tracker = MotorTracker(
+            config.tracker, window_s=config.window_s, hop_s=config.hop_s, limits=limits
+        )
+        self.tachometer = TachometerCheck(config.speed, config.hop_s)
         self._chain_state = {c: _ChainState() for c in self.circuits}
         self._anchor_ns: int | None = None
         self.next_index = 0
@@ -305,22 +324,55 @@ class SlidingWindowObserver:
         }
         signals = dict(window.signals)
         flags: list[str] = []
+        fits: dict[str, CircuitEstimate | None] = {}
         for circuit in self.circuits:
             if any(np.isnan(signals[c][0]) for c in CIRCUIT_CHANNELS[circuit]):
                 continue  # the source lacks a channel this circuit needs
             try:
-                out[circuit] = self._estimate_circuit(circuit, index, signals, period_s)
+                fits[circuit] = self._estimate_circuit(circuit, index, signals, period_s)
             except (EstimationError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
                 self.counts[f"{circuit}_failed"] += 1
                 flags.append(f"{circuit}: {exc}")
-                out[circuit] = self._held_output(circuit, reason=str(exc))
-        if not any(c in out for c in self.circuits):
+                fits[circuit] = None
+        if not fits:
             return self._skip(index, t0, end_ns, "no_circuit_channels")
+        # The EMF speed from the state *before* this window: a window must not
+        # vouch for itself (a tachometer reading low would teach K its error).
+        speed = self._emf_speed(signals, period_s)
+        suspect, tach_event = self.tachometer.update(int(end_ns), speed)
+        distrust = frozenset({"K"}) if self.tachometer.distrusts_k(suspect) else frozenset()
+        step = self.tracker.step(
+            int(end_ns), self._evidence(fits), loss_w=self._copper_loss(signals, period_s, fits),
+            distrust=distrust,
+        )  # fmt: skip
+        for circuit, est in fits.items():
+            out[circuit] = self._circuit_output(circuit, est, step)
+            if est is None:
+                out[circuit]["error"] = next(
+                    (f.split(": ", 1)[1] for f in flags if f.startswith(f"{circuit}: ")), ""
+                )
+        temperature = self._temperatures(step)
+        if temperature:
+            out["temperature"] = {
+                circuit: {"C": temp_c, "std": std_c}
+                for circuit, (temp_c, std_c) in temperature.items()
+            }
+        out["speed"] = self._speed_output(speed, signals)
+        events = [self._change_event(c) for c in step.changes]
+        if tach_event is not None:
+            events.append(tach_event)
+        for note in step.notes:
+            log.info("window %d: %s", index, note)
+        flags += step.notes
+        out["events"] = events
         out["elapsed_ms"] = (self._clock() - started) / 1e6
         out["flags"] = flags
         self.counts["estimated"] += 1
+        self.counts["events"] += len(events)
         self.last_estimate = out
-        return WindowResult(index, t0, end_ns, out, arrival_ns=int(window.arrival_ns[-1]))
+        return WindowResult(
+            index, t0, end_ns, out, arrival_ns=int(window.arrival_ns[-1]), events=tuple(events)
+        )
 
     def _skip(self, index: int, t0: int, t1: int, reason: str) -> WindowResult:
         key = reason.split(":")[0]
@@ -329,16 +381,9 @@ class SlidingWindowObserver:
         log.debug("window %d skipped: %s", index, reason)
         return WindowResult(index, t0, t1, None, skip_reason=reason)
 
-    def _held_output(self, circuit: str, reason: str) -> dict[str, Any]:
-        tracker = self._trackers[circuit]
-        out: dict[str, Any] = {p: tracker.accepted.get(p) for p in CIRCUIT_PARAMS[circuit]}
-        out["quality"] = {p: ("held" if p in tracker.accepted else "none") for p in out}
-        out["error"] = reason
-        return out
-
     def _estimate_circuit(
         self, circuit: str, index: int, window: dict[str, np.ndarray], period_s: float
-    ) -> dict[str, Any]:
+    ) -> CircuitEstimate:
         cfg = self.config
         k = cfg.decimate
         dt = period_s * k
@@ -347,7 +392,7 @@ class SlidingWindowObserver:
         # current) sampled at its start.
         outputs = {"field": ("if",), "armature": ("ia",)}[circuit]
         s = {c: _decimated(window[c], k, sample=c in outputs) for c in CIRCUIT_CHANNELS[circuit]}
-        tracker = self._trackers[circuit]
+        search = self._search[circuit]
         rng = np.random.default_rng([cfg.seed, index, _CIRCUIT_INDEX[circuit]])
         full: SearchRange
         if circuit == "field":
@@ -356,14 +401,15 @@ class SlidingWindowObserver:
             full = armature_search_range(s["va"], s["ia"], s["if"], s["omega"], dt)
         x0 = None
         init = None
-        warm = tracker.factor is not None and "R" in tracker.accepted and "L" in tracker.accepted
+        names = CIRCUIT_NAMES[circuit]
+        r_prev, l_prev = self.tracker.value(names["R"]), self.tracker.value(names["L"])
+        warm = search.factor is not None and r_prev is not None and l_prev is not None
         if warm:
-            assert tracker.factor is not None
-            r_prev, l_prev = tracker.accepted["R"], tracker.accepted["L"]
+            assert search.factor is not None and r_prev is not None and l_prev is not None
             r_in = min(max(r_prev, full.resistance_ohm[0]), full.resistance_ohm[1])
             l_in = min(max(l_prev, full.inductance_h[0]), full.inductance_h[1])
             x0 = (r_in, l_in)
-            init = full.around(r_in, l_in, tracker.factor)
+            init = full.around(r_in, l_in, search.factor)
         kwargs: dict[str, Any] = dict(
             search_range=full,
             n_particles=cfg.warm_particles if warm else cfg.cold_particles,
@@ -380,13 +426,9 @@ class SlidingWindowObserver:
         else:
             est = estimate_armature(s["va"], s["ia"], s["if"], s["omega"], dt, **kwargs)
         self._learn_chain(circuit, est)
-        out = self._judge(circuit, tracker, est, warm)
-        out["chain"] = {
-            "intersample": est.intersample,
-            "shift_samples": est.shift_samples,
-            "decided": self._chain_state[circuit].model is not None,
-        }
-        return out
+        search.warm = warm
+        self._update_search(circuit, search, est, warm)
+        return est
 
     def _chain_kwargs(self, circuit: str, decimate: int) -> dict[str, Any]:
         """The estimator's chain options for this circuit: configured, decided, or still open."""
@@ -420,90 +462,211 @@ class SlidingWindowObserver:
                 circuit, sum(state.votes.values()), state.model, state.shift,
             )  # fmt: skip
 
-    def _judge(
-        self, circuit: str, tracker: _Tracker, est: CircuitEstimate, warm: bool
-    ) -> dict[str, Any]:
-        """Per-parameter quality, the values reported, and the next window's warm start."""
+    def _update_search(
+        self, circuit: str, search: _Search, est: CircuitEstimate, warm: bool
+    ) -> None:
+        """The next window's warm start: shrink while fits agree with the tracked state."""
         cfg = self.config
-        limits = cfg.quality.limits(circuit)
         agree = {"R": cfg.agree.R, "L": cfg.agree.L, "K": cfg.agree.K}
         raw = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}
-        quality: dict[str, str] = {}
-        rel_std: dict[str, float | None] = {}
-        reference = {p: statistics.median(v) for p, v in tracker.recent.items() if v}
+        limits = cfg.quality.limits(circuit)
         jumped = False
-        identified = {}
-        for p in CIRCUIT_PARAMS[circuit]:
-            rs = est.relative_std(p)
-            rel_std[p] = _finite_or_none(rs)
-            value = raw[p]
-            identified[p] = value is not None and math.isfinite(value) and rs <= limits[p]
-        if circuit == "armature" and not (identified["R"] and identified["K"]):
-            # R and K share the static balance va = R*ia + K*if*omega: one without
-            # the other is a biased split, so neither moves.
-            identified["R"] = identified["K"] = False
-        for p in CIRCUIT_PARAMS[circuit]:
-            value = raw[p]
-            if not identified[p]:
-                quality[p] = "held" if p in tracker.accepted else "none"
+        for p, name in CIRCUIT_NAMES[circuit].items():
+            tracked, value = self.tracker.value(name), raw[p]
+            if tracked is None or value is None or not est.relative_std(p) <= limits[p]:
                 continue
-            assert value is not None
-            if p in reference and abs(value / reference[p] - 1.0) > agree[p]:
-                # A jump counts only once `confirm_windows` windows in a row agree on it.
-                jumped = True
-                pending = tracker.candidates.setdefault(p, deque(maxlen=cfg.confirm_windows))
-                pending.append(float(value))
-                spread = (max(pending) - min(pending)) / abs(value)
-                if len(pending) < cfg.confirm_windows or spread > agree[p]:
-                    quality[p] = "unconfirmed"
-                    continue
-            confirmed = tracker.candidates.pop(p, None)
-            quality[p] = "ok"
-            tracker.accepted[p] = float(value)
-            recent = tracker.recent.setdefault(p, deque(maxlen=9))
-            if confirmed:
-                recent.clear()  # a confirmed change: the new level is the reference
-                recent.extend(confirmed)
-            else:
-                recent.append(float(value))
-        history = list(tracker.rms_history)
+            jumped |= abs(value / tracked - 1.0) > agree[p]
+        history = list(search.rms_history)
         degraded = len(history) >= 3 and est.rms_a > cfg.degrade_ratio * statistics.median(history)
-        tracker.rms_history.append(est.rms_a)
-        known = "R" in tracker.accepted and "L" in tracker.accepted
+        search.rms_history.append(est.rms_a)
+        names = CIRCUIT_NAMES[circuit]
+        known = all(self.tracker.value(names[p]) is not None for p in ("R", "L"))
         if jumped or degraded:
             # Widen; after a large jump search from scratch over the full range.
             self.counts[f"{circuit}_widened"] += 1
-            base = tracker.factor if tracker.factor is not None else cfg.initial_range_factor
+            base = search.factor if search.factor is not None else cfg.initial_range_factor
             widened = 1.0 + (base - 1.0) * cfg.widen
-            tracker.factor = None if widened >= cfg.max_range_factor else widened
-        elif known:
-            if tracker.factor is None:
-                tracker.factor = cfg.initial_range_factor
+            search.factor = None if widened >= cfg.max_range_factor else widened
+        elif known or est.relative_std("R") <= limits["R"]:
+            if search.factor is None:
+                search.factor = cfg.initial_range_factor
             elif warm:
-                tracker.factor = max(
-                    cfg.min_range_factor, 1.0 + (tracker.factor - 1.0) * cfg.shrink
-                )
-        if circuit == "field" and quality.get("L") == "ok":
-            tau = tracker.accepted["L"] / tracker.accepted["R"]
-            if cfg.window_s < cfg.min_field_taus * tau:
-                if "window_short_for_field" not in self.warnings:
-                    log.warning(
-                        "window_s = %g s is shorter than %g field time constants (%.3g s each): "
-                        "raise observer.window_s",
-                        cfg.window_s, cfg.min_field_taus, tau,
-                    )  # fmt: skip
-                self.warnings.add("window_short_for_field")
-        out: dict[str, Any] = {p: tracker.accepted.get(p) for p in CIRCUIT_PARAMS[circuit]}
+                search.factor = max(cfg.min_range_factor, 1.0 + (search.factor - 1.0) * cfg.shrink)
+
+    # ------------------------------------------------------------------ tracked state
+
+    def _evidence(self, fits: dict[str, CircuitEstimate | None]) -> dict[str, Evidence | None]:
+        """Each parameter's fit in this window, or None where the window is no evidence."""
+        evidence: dict[str, Evidence | None] = {}
+        for name in PARAMETERS:
+            circuit, p = LOCATION[name]
+            est = fits.get(circuit)
+            if est is None or not est.describes_window:
+                evidence[name] = None
+                continue
+            value = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}[p]
+            rel = est.relative_std(p)
+            ok = value is not None and math.isfinite(value) and math.isfinite(rel)
+            evidence[name] = Evidence(float(value), float(rel)) if ok else None  # type: ignore[arg-type]
+        return evidence
+
+    def _copper_loss(
+        self,
+        signals: dict[str, np.ndarray],
+        period_s: float,
+        fits: dict[str, CircuitEstimate | None],
+    ) -> float | None:
+        """The machine's I^2R loss (W) over the last hop, from the tracked resistances
+        (before the first evidence: from this window's fits)."""
+        n = max(1, int(round(self.config.hop_s / period_s)))
+        loss = 0.0
+        known = False
+        for name, channel in (("Rf", "if"), ("Ra", "ia")):
+            r = self.tracker.value(name)
+            fit = fits.get(LOCATION[name][0])
+            if r is None and fit is not None and math.isfinite(fit.resistance_ohm):
+                r = fit.resistance_ohm
+            current = signals[channel][-n:]
+            if r is None or np.isnan(current[0]):
+                continue
+            loss += r * float(np.mean(current * current))
+            known = True
+        return loss if known else None
+
+    def _circuit_output(
+        self, circuit: str, est: CircuitEstimate | None, step: TrackerStep
+    ) -> dict[str, Any]:
+        """The circuit's part of the estimate message: tracked state beside the window's fit."""
+        names = CIRCUIT_NAMES[circuit]
+        tracked = {p: step.parameters[name] for p, name in names.items()}
+        out: dict[str, Any] = {p: _finite_or_none(t.value) for p, t in tracked.items()}
+        out["std"] = {p: _finite_or_none(t.std) for p, t in tracked.items()}
+        out["quality"] = {p: t.status for p, t in tracked.items()}
+        out["rate_per_min"] = {"R": _finite_or_none(tracked["R"].rate_per_min)}
+        if est is None:
+            out["raw"] = {p: None for p in names}
+            out["rel_std"] = {p: None for p in names}
+            return out
+        raw = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}
+        out["raw"] = {p: _finite_or_none(raw[p]) for p in names}
+        out["rel_std"] = {p: _finite_or_none(est.relative_std(p)) for p in names}
         out["rms"] = _finite_or_none(est.rms_a)
-        out["quality"] = quality
-        out["rel_std"] = rel_std
-        out["raw"] = {p: _finite_or_none(raw[p]) for p in CIRCUIT_PARAMS[circuit]}
-        out["warm"] = warm
-        out["range_factor"] = tracker.factor
+        out["describes_window"] = est.describes_window
+        if est.note:
+            out["note"] = est.note
+        search = self._search[circuit]
+        out["warm"] = search.warm
+        out["range_factor"] = search.factor
         out["evaluations"] = est.pso.n_evaluations
         if circuit == "armature":
             out["input_noise_var"] = est.input_noise_var
+        out["chain"] = {
+            "intersample": est.intersample,
+            "shift_samples": est.shift_samples,
+            "decided": self._chain_state[circuit].model is not None,
+        }
+        if circuit == "field" and tracked["L"].status == "ok":
+            self._check_field_window(tracked["L"].value, tracked["R"].value)
         return out
+
+    def _check_field_window(self, inductance: float | None, resistance: float | None) -> None:
+        cfg = self.config
+        if inductance is None or resistance is None:
+            return
+        tau = inductance / resistance
+        if cfg.window_s < cfg.min_field_taus * tau:
+            if "window_short_for_field" not in self.warnings:
+                log.warning(
+                    "window_s = %g s is shorter than %g field time constants (%.3g s each): "
+                    "raise observer.window_s",
+                    cfg.window_s, cfg.min_field_taus, tau,
+                )  # fmt: skip
+            self.warnings.add("window_short_for_field")
+
+    def _temperatures(self, step: TrackerStep) -> dict[str, tuple[float, float]]:
+        """Winding temperatures and their one-sigma (deg C, K) from the tracked resistances,
+        where a reference is set."""
+        cfg = self.config.tracker
+        out: dict[str, tuple[float, float]] = {}
+        for circuit, name, r_ref in (
+            ("field", "Rf", cfg.field_r_ref_ohm), ("armature", "Ra", cfg.armature_r_ref_ohm),
+        ):  # fmt: skip
+            tracked = step.parameters[name]
+            if r_ref <= 0 or tracked.value is None or tracked.std is None:
+                continue
+            temp, std = winding_temperature(
+                tracked.value, tracked.std / tracked.value, r_ref, cfg.alpha_per_k, cfg.reference_c
+            )
+            out[circuit] = (temp, std)
+        return out
+
+    def _speed_parameters(self) -> tuple[dict[str, tuple[float, float]] | None, str]:
+        """``Ra, La, K`` (value, relative std) for the EMF speed, and where they come from."""
+        tracked = {n: (self.tracker.value(n), self.tracker.rel_std(n)) for n in ("Ra", "La", "K")}
+        if all(v is not None and s is not None for v, s in tracked.values()):
+            return {n: (float(v), float(s)) for n, (v, s) in tracked.items()}, "tracked"  # type: ignore[arg-type]
+        cfg = self.config.speed
+        if cfg.K_h > 0:
+            return {"Ra": (cfg.Ra_ohm, 0.0), "La": (cfg.La_h, 0.0), "K": (cfg.K_h, 0.0)}, (
+                "configured [observer.speed] Ra_ohm, La_h, K_h"
+            )
+        return None, ""
+
+    def _emf_speed(self, signals: dict[str, np.ndarray], period_s: float) -> SpeedEstimate | None:
+        if any(np.isnan(signals[c][0]) for c in ("va", "ia", "if")):
+            return None
+        params, _source = self._speed_parameters()
+        if params is None:
+            return None
+        omega = None if np.isnan(signals["omega"][0]) else signals["omega"]
+        return emf_speed(signals["va"], signals["ia"], signals["if"], omega, period_s, params)
+
+    def _speed_output(
+        self, speed: SpeedEstimate | None, signals: dict[str, np.ndarray]
+    ) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "emf_rad_s": None if speed is None else _finite_or_none(speed.emf_rad_s),
+            "std_rad_s": None if speed is None else _finite_or_none(speed.std_rad_s),
+            "measured_rad_s": None if speed is None else _finite_or_none(speed.measured_rad_s),
+            "measured_std_rad_s": None if speed is None else speed.measured_std_rad_s,
+            "tachometer": "fault" if self.tachometer.faulty else "ok",
+        }
+        if np.isnan(signals["omega"][0]):
+            _, source = self._speed_parameters()
+            out["tachometer"] = "none"
+            out["note"] = (
+                "no speed channel: the armature equation holds only K*omega, so K and the "
+                "speed cannot be separated, and Ra, La, K are not estimated; "
+                + (f"the EMF speed uses the {source} values" if source else
+                   "set [observer.speed] K_h (and Ra_ohm, La_h) for an EMF speed")
+            )  # fmt: skip
+        return out
+
+    @staticmethod
+    def _change_event(change: Any) -> dict[str, Any]:
+        circuit, p = LOCATION[change.parameter]
+        units = {"R": "ohm", "L": "H", "K": "H"}[p]
+        verb = "rose" if change.relative > 0 else "fell"
+        cause = {
+            ("Ra", 1): " (a loose connection or brushes?)",
+            ("K", -1): " (a field fault?)",
+        }.get((change.parameter, 1 if change.relative > 0 else -1), "")
+        return {
+            "kind": "change",
+            "parameter": change.parameter,
+            "circuit": circuit,
+            "t_ns": int(change.t_detected_ns),
+            "t_change_ns": int(change.t_change_ns),
+            "relative": change.relative,
+            "relative_std": change.relative_std,
+            "before": change.before,
+            "after": change.after,
+            "message": (
+                f"{change.parameter} {verb} {100 * abs(change.relative):.1f} % "
+                f"({change.before:.4g} -> {change.after:.4g} {units}) at about "
+                f"{change.t_change_ns / 1e9:.2f} s{cause}"
+            ),
+        }
 
     def health(self) -> dict[str, Any]:
         """Counters for the health topic."""
@@ -512,8 +675,13 @@ class SlidingWindowObserver:
             "next_index": self.next_index,
             "last_skip_reason": self.last_skip_reason,
             "warnings": sorted(self.warnings),
-            "range_factor": {c: t.factor for c, t in self._trackers.items()},
+            "range_factor": {c: t.factor for c, t in self._search.items()},
             "chain": {c: st.to_dict() for c, st in self._chain_state.items()},
+            "tracker": dict(self.tracker.counts),
+            "tachometer": {
+                "state": "fault" if self.tachometer.faulty else "ok",
+                **self.tachometer.counts,
+            },
         }
 
 

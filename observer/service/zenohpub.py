@@ -1,6 +1,7 @@
 """Zenoh output: estimates and health as JSON, and a queryable answering with the latest estimate.
 
 Keys: ``dcobserver/<drive_id>/estimate``, ``dcobserver/<drive_id>/health``,
+``dcobserver/<drive_id>/event`` (confirmed changes, tachometer alarms),
 ``dcobserver/<drive_id>/latest`` (queryable), with ``/<motor_id>`` after the
 drive when one is configured (:func:`observer.service.zenohconf.key`); TLS,
 user/password and access control as configured
@@ -64,7 +65,7 @@ class ZenohPublisher:
                 drop = zenoh.CongestionControl.DROP
                 publishers = {
                     leaf: session.declare_publisher(self._key(leaf), congestion_control=drop)
-                    for leaf in ("estimate", "health")
+                    for leaf in ("estimate", "health", "event")
                 }
                 queryable = session.declare_queryable(self._key("latest"), self._on_query)
             except Exception as exc:
@@ -88,7 +89,7 @@ class ZenohPublisher:
                 self._health["state"] = "open"
             log.info(
                 "zenoh: publishing on %s (listen %s, connect %s)",
-                self._key("{estimate,health,latest}"),
+                self._key("{estimate,health,event,latest}"),
                 ",".join(self.config.listen) or "-", ",".join(self.config.connect) or "-",
             )  # fmt: skip
             return

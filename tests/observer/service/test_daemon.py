@@ -102,10 +102,15 @@ def test_done_when_subscriber_tracks_ra_rise_and_log_is_readable(
 ):
     port = free_port()
     sub = children(
-        ["subscribe", "dcobserver/*/estimate", "--json", "--listen",
+        ["subscribe", "dcobserver/*/*", "--json", "--listen",
          f"tcp/127.0.0.1:{port}", "--timeout", "120"],
     )  # fmt: skip
     sub.wait_line("subscribed to", timeout=30)
+
+    def received(kind):  # estimates carry an index, events a kind, health a state
+        parsed = [json.loads(x) for x in sub.stdout if x.startswith("{")]
+        return [x for x in parsed if kind in x]
+
     # The daemon reads its source only once the subscriber is matched (an event, not
     # a guess at how long connection and declaration take on a loaded machine).
     zenoh = (
@@ -125,11 +130,11 @@ def test_done_when_subscriber_tracks_ra_rise_and_log_is_readable(
     n_windows = int((2 * SEGMENT_S - 0.0005 - 1.0) / 0.25) + 1  # last sample at 15.9995 s
     deadline = time.monotonic() + 10
     while time.monotonic() < deadline:
-        got = [json.loads(x) for x in sub.stdout if x.startswith("{")]
+        got = received("index")
         if got and got[-1]["index"] == n_windows - 1:
             break
         sub.lines.get(timeout=0.5) if not sub.lines.empty() else time.sleep(0.05)
-    got = [json.loads(x) for x in sub.stdout if x.startswith("{")]
+    got = received("index")
     assert any("a subscriber is matched" in line for line in daemon.stderr), daemon.stderr[-5:]
     assert len(got) >= n_windows // 2, "the subscriber received estimates over Zenoh"
     assert {e["drive_id"] for e in got} == {"test"}
@@ -153,13 +158,22 @@ def test_done_when_subscriber_tracks_ra_rise_and_log_is_readable(
     assert (tracked[0]["t_ns"] / 1e9) - (SEGMENT_S + 1.0) <= 8 * 0.25
     late = ra(SEGMENT_S + 3.0, 2 * SEGMENT_S)
     assert late and np.median(late) == pytest.approx(3.5 * RA_RISE, rel=0.02)
+    # The change is an event on dcobserver/<drive>/event, within 2 s, with its size.
+    events = received("kind")
+    changes = [e for e in events if e["kind"] == "change"]
+    assert [e["parameter"] for e in changes] == ["Ra"], events
+    assert changes[0]["relative"] == pytest.approx(RA_RISE - 1, abs=0.02)
+    assert changes[0]["t_ns"] / 1e9 - SEGMENT_S <= 2.0
+    assert abs(changes[0]["t_change_ns"] / 1e9 - SEGMENT_S) <= 0.5
 
     # The log: valid, indexed, with the three schemas; the samples are the recording's.
     files = sorted(log_dir.glob("*.mcap"))
     assert len(files) == 1
     schemas, topics = _mcap_messages(files[0])
-    assert {"dcobserver.SampleBlock", "dcobserver.Estimate", "dcobserver.Health"} <= schemas
+    assert {"dcobserver.SampleBlock", "dcobserver.Estimate", "dcobserver.Health",
+            "dcobserver.Event"} <= schemas  # fmt: skip
     assert topics["/health"] and topics["/estimate"]
+    assert [json.loads(m.data) for m in topics["/event"]] == events
     logged = read_recording(files[0])
     original = read_recording(ra_rise_recording)
     assert np.array_equal(logged["ia"], original["ia"])

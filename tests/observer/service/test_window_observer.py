@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 
 from drivers.base import SampleBlock
-from observer.config import ObserverConfig, QualityConfig
+from observer.config import ObserverConfig, QualityConfig, SpeedConfig, TrackerConfig
 from observer.estimation.motor import P12
 from observer.service.ringbuffer import RingBuffer
 from observer.service.window_observer import SlidingWindowObserver, check_window
+from observer.simulation.effects_sim import Change
+from observer.simulation.simulate import simulate
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -23,6 +25,10 @@ FAST = dict(
     warm_particles=16, warm_iterations=12, buffer_s=4.0,
     # The ideal simulator's 1 s windows pin La to ~5 %: accept it at 10 %.
     quality=QualityConfig(L=0.10),
+    # The winding temperatures need the resistances at 20 C: the simulated P-12's.
+    tracker=TrackerConfig(
+        field_r_ref_ohm=P12.field_resistance_ohm, armature_r_ref_ohm=P12.armature_resistance_ohm
+    ),
 )  # fmt: skip
 
 
@@ -100,20 +106,94 @@ def test_constant_field_voltage_holds_field_inductance(p12_recording):
     assert field[-1]["rel_std"]["L"] > QualityConfig().L
 
 
-def test_held_parameter_keeps_its_last_accepted_value(p12_run):
+def test_held_parameter_is_carried_forward_by_the_tracker(p12_run):
+    """A window that is no evidence for a parameter does not move it: inductances and
+    K (random walks) keep their value exactly, resistances move by their tracked rate
+    only; its uncertainty grows meanwhile. Every estimate keeps the window's own fit."""
     _, results = p12_run
     seen_held = False
-    accepted = {}
+    previous: dict = {}
     for r in results:
         for circuit in ("field", "armature"):
             c = r.estimate[circuit]
+            assert set(c["raw"]) == set(c["quality"])
             for p, q in c["quality"].items():
-                if q in ("held", "unconfirmed"):
-                    assert c[p] == accepted[(circuit, p)]
+                key = (circuit, p)
+                if q == "held" and key in previous:
+                    value, std, rate = previous[key]
+                    if p == "R":
+                        hop_min = (r.t1_ns - previous[(circuit, "t")]) / 60e9
+                        assert c[p] == pytest.approx(value * (1 + rate * hop_min), rel=1e-6)
+                    else:
+                        assert c[p] == value
+                    assert c["std"][p] > std
                     seen_held = True
-                elif q == "ok":
-                    accepted[(circuit, p)] = c[p]
+                if c[p] is not None:
+                    previous[key] = (c[p], c["std"][p], (c.get("rate_per_min") or {}).get("R"))
+            previous[(circuit, "t")] = r.t1_ns
     assert seen_held  # the duty cycle has windows with a constant field voltage
+
+
+def test_tracked_state_temperatures_and_emf_speed_are_published(p12_run):
+    """Each estimate: the tracked value with its std, the window's own fit beside it, the
+    winding temperatures (the simulated motor is at 20 C) and the EMF speed next to the
+    measured one; a clean recording raises no event."""
+    _, results = p12_run
+    last = results[-1].estimate
+    for circuit in ("field", "armature"):
+        c = last[circuit]
+        for p in c["quality"]:
+            assert c["std"][p] > 0 and c["raw"][p] is not None
+            # The tracked std stays near the window's own: overlapping windows share samples.
+            assert c["std"][p] / c[p] < 3 * c["rel_std"][p] or c["quality"][p] != "ok"
+        temp = last["temperature"][circuit]
+        assert abs(temp["C"] - 20.0) < max(3.0, 3 * temp["std"]) and 0 < temp["std"] < 10
+    speed = last["speed"]
+    assert speed["tachometer"] == "ok"
+    assert speed["emf_rad_s"] == pytest.approx(speed["measured_rad_s"], rel=0.02, abs=2.0)
+    assert not any(r.events for r in results)
+    assert not any(r.estimate["events"] for r in results)
+
+
+def test_a_tachometer_losing_a_tenth_of_its_reading_is_flagged_within_2_s():
+    """The EMF speed from the tracked parameters disagrees with the measured one: an event,
+    and K is not learnt from the faulty speed (it would rise 11 %)."""
+    rec = simulate(P12, duration_s=12.0, seed=3, changes=(Change("tach", -0.10, 7.0),))
+    _, results = _run(_blocks(rec), hop_s=0.25, speed=SpeedConfig(alarm_s=0.5))
+    events = [e for r in results for e in r.events]
+    faults = [e for e in events if e["kind"] == "tachometer" and e["state"] == "fault"]
+    assert faults, events
+    assert 7.0 < faults[0]["t_ns"] / 1e9 <= 9.0
+    assert faults[0]["relative"] < -0.03 and "tachometer" in faults[0]["message"]
+    assert not [e for e in events if e["kind"] == "change"], events
+    last = results[-1].estimate
+    assert last["speed"]["tachometer"] == "fault"
+    assert last["armature"]["K"] == pytest.approx(P12.emf_constant_h, rel=0.01)
+
+
+def test_without_a_speed_channel_the_emf_speed_uses_configured_parameters(p12_recording):
+    """No omega: the armature cannot be estimated (K and the speed are one product); the
+    field is, and the EMF speed comes from the configured Ra, La, K, with a note saying so."""
+    blocks = [
+        SampleBlock(b.t_ns, {**b.signals, "omega": np.full(len(b), np.nan)})
+        for b in _blocks(p12_recording)
+    ]
+    speed = SpeedConfig(
+        Ra_ohm=P12.armature_resistance_ohm, La_h=P12.armature_inductance_h, K_h=P12.emf_constant_h
+    )
+    _, results = _run(blocks, speed=speed)
+    last = results[-1].estimate
+    assert "armature" not in last and last["field"]["R"] is not None
+    assert last["speed"]["tachometer"] == "none" and last["speed"]["measured_rad_s"] is None
+    assert "cannot be separated" in last["speed"]["note"]
+    assert "configured" in last["speed"]["note"]
+    n = int(round(1.0 / p12_recording.dt))
+    window = slice(p12_recording.n_samples - n, p12_recording.n_samples)
+    true_mean = float(np.mean(p12_recording["omega"][window]))
+    assert last["speed"]["emf_rad_s"] == pytest.approx(true_mean, rel=0.03, abs=3.0)
+    _, unset = _run(blocks[:30])
+    assert unset[-1].estimate["speed"]["emf_rad_s"] is None
+    assert "set [observer.speed] K_h" in unset[-1].estimate["speed"]["note"]
 
 
 def test_check_window_reasons():

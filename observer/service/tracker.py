@@ -1,0 +1,714 @@
+"""The tracked motor state behind the window fits: one Kalman filter per parameter.
+
+Each window's swarm fit is a *measurement* of the motor's parameters; the
+published values are a tracked state that weighs every window by its
+uncertainty, so a weak window barely moves it and a strong one corrects it.
+
+Per parameter (``Rf, Lf, Ra, La, K``) the state lives in log units (relative
+changes are what physics bounds) and follows
+
+* ``L`` and ``K``: a random walk, ``x' = x + w``, ``var(w) = q * dt``;
+* ``R``: a level and its rate of change (the windings heat and cool), or, with
+  a thermal time constant configured, a first-order thermal model driven by
+  the machine's I^2R losses (:class:`Thermal`), so the resistance is carried
+  between informative windows too.
+
+The process noise ``q`` comes from physical rates (``[observer.tracker]``): how
+far a parameter can wander per minute. A window's fit enters with variance
+``overlap * rel_std^2``: consecutive windows share ``1 - hop/window`` of their
+samples, so ``overlap = window_s / hop_s`` windows carry the information of one
+(treating them as independent would count each sample ``overlap`` times). A
+fit stands for the window's middle, not its end: models with a rate say so in
+their observation row, and add the rate's spread over the window as model error
+(a constant-parameter fit of a moving parameter).
+
+Windows that are not evidence -- the estimator says its model does not
+describe them, or the parameter's relative std is above its
+``[observer.quality]`` limit -- only advance the state (``held``). An
+innovation beyond ``gate_sigma`` is not used to update (``outlier``) but goes to
+the change test (:mod:`observer.service.changes`). A confirmed change freezes
+the circuit's parameters until the first window wholly after it (windows across
+a step describe neither side), then re-starts the changed parameter from that
+window and reports the size of the step as a :class:`ChangeEvent`; a change
+that window does not bear out is dropped.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from observer.config import TrackerConfig
+from observer.service.changes import Alarm, Cusum
+
+#: The tracked parameters, and where each sits in the estimate message.
+PARAMETERS = ("Rf", "Lf", "Ra", "La", "K")
+LOCATION: dict[str, tuple[str, str]] = {
+    "Rf": ("field", "R"),
+    "Lf": ("field", "L"),
+    "Ra": ("armature", "R"),
+    "La": ("armature", "L"),
+    "K": ("armature", "K"),
+}
+
+#: Statuses of a tracked parameter in one window.
+STATUSES = ("ok", "held", "outlier", "change", "none")
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """One window's fit of one parameter.
+
+    Attributes
+    ----------
+    value : float
+        The fit (SI units), > 0.
+    rel_std : float
+        Its one-sigma relative uncertainty (the estimator's ``std / value``).
+    """
+
+    value: float
+    rel_std: float
+
+
+@dataclass
+class Gaussian:
+    """Mean ``x`` and covariance ``P`` of a state (log units)."""
+
+    x: np.ndarray
+    P: np.ndarray
+
+    def copy(self) -> Gaussian:
+        return Gaussian(self.x.copy(), self.P.copy())
+
+
+def predict(state: Gaussian, transition: np.ndarray, noise: np.ndarray) -> None:
+    """Kalman prediction in place: ``x = F x``, ``P = F P F' + Q``."""
+    state.x = transition @ state.x
+    state.P = transition @ state.P @ transition.T + noise
+
+
+def innovation(state: Gaussian, row: np.ndarray, z: float, r: float) -> tuple[float, float]:
+    """Innovation ``z - H x`` and its variance ``H P H' + r`` of a scalar measurement."""
+    return float(z - row @ state.x), float(row @ state.P @ row + r)
+
+
+def update(state: Gaussian, row: np.ndarray, nu: float, s: float) -> None:
+    """Kalman update in place with innovation ``nu`` of variance ``s`` (Joseph form)."""
+    gain = state.P @ row / s
+    a = np.eye(state.x.size) - np.outer(gain, row)
+    state.x = state.x + gain * nu
+    state.P = a @ state.P @ a.T + np.outer(gain, gain) * (s - row @ state.P @ row)
+    state.P = 0.5 * (state.P + state.P.T)
+
+
+class Model(Protocol):
+    """How one parameter's log state evolves and is observed."""
+
+    def initial(self, z: float, r: float, loss_w: float) -> Gaussian: ...
+
+    def transition(self, dt: float, loss_w: float) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def observation(self, window_s: float, loss_w: float) -> np.ndarray: ...
+
+    def rate(self, state: Gaussian, loss_w: float) -> float: ...
+
+    def shift(self, state: Gaussian, step: float, r: float) -> None: ...
+
+
+class RandomWalk:
+    """``x' = x + w``: a parameter that only wanders (``q``: variance per second)."""
+
+    def __init__(self, q: float) -> None:
+        self.q = q
+
+    def initial(self, z: float, r: float, loss_w: float) -> Gaussian:
+        return Gaussian(np.array([z]), np.array([[r]]))
+
+    def transition(self, dt: float, loss_w: float) -> tuple[np.ndarray, np.ndarray]:
+        return np.eye(1), np.array([[self.q * dt]])
+
+    def observation(self, window_s: float, loss_w: float) -> np.ndarray:
+        return np.ones(1)
+
+    def rate(self, state: Gaussian, loss_w: float) -> float:
+        return 0.0
+
+    def shift(self, state: Gaussian, step: float, r: float) -> None:
+        state.x[0] += step
+        state.P[0, 0] = r
+
+
+class Trend:
+    """Level and rate of change: ``x' = x + v dt``, the rate ``v`` a random walk.
+
+    Parameters
+    ----------
+    q_level, q_rate : float
+        Variance per second of the level's own wander (1/s) and of the rate (1/s^3).
+    rate_std : float
+        Prior one-sigma rate before any window (1/s).
+    """
+
+    def __init__(self, q_level: float, q_rate: float, rate_std: float) -> None:
+        self.q_level = q_level
+        self.q_rate = q_rate
+        self.rate_std = rate_std
+
+    def initial(self, z: float, r: float, loss_w: float) -> Gaussian:
+        return Gaussian(np.array([z, 0.0]), np.diag([r, self.rate_std**2]))
+
+    def transition(self, dt: float, loss_w: float) -> tuple[np.ndarray, np.ndarray]:
+        q = self.q_rate
+        noise = np.array(
+            [[self.q_level * dt + q * dt**3 / 3, q * dt**2 / 2], [q * dt**2 / 2, q * dt]]
+        )
+        return np.array([[1.0, dt], [0.0, 1.0]]), noise
+
+    def observation(self, window_s: float, loss_w: float) -> np.ndarray:
+        return np.array([1.0, -0.5 * window_s])  # the fit stands for the window's middle
+
+    def rate(self, state: Gaussian, loss_w: float) -> float:
+        return float(state.x[1])
+
+    def shift(self, state: Gaussian, step: float, r: float) -> None:
+        state.x[0] += step
+        state.P[0, :] = 0.0
+        state.P[:, 0] = 0.0
+        state.P[0, 0] = r
+
+
+class Thermal:
+    """A winding's log resistance as a first-order thermal model driven by the copper losses.
+
+    ``y`` (log resistance) relaxes with time constant ``tau`` towards
+    ``y0 + g * P / P_ref``: ``y0`` the cold (ambient) value, ``P`` the machine's
+    I^2R loss (W) over the last hop, ``g`` the steady rise at the reference loss
+    ``P_ref`` (the loss of the first window, so ``g`` is a relative rise of order
+    0.1 for any motor). ``y0`` and ``g`` are states too, learnt from the windows,
+    so only ``tau`` is motor data. The model is linear in ``(y, g, y0)`` for a
+    known ``P``: a plain Kalman filter.
+
+    Parameters
+    ----------
+    tau : float
+        Thermal time constant (s).
+    q_level : float
+        Variance per second of what the model leaves out (1/s).
+    gain_std : float
+        Prior one-sigma of ``g`` (relative rise at the first window's loss).
+    cold_std : float
+        Prior one-sigma of ``y0 - y`` at the first window.
+    """
+
+    def __init__(
+        self, tau: float, q_level: float, gain_std: float = 0.3, cold_std: float = 0.1
+    ) -> None:
+        self.tau = tau
+        self.q_level = q_level
+        self.gain_std = gain_std
+        self.cold_std = cold_std
+        self.reference_w = 1.0
+
+    def initial(self, z: float, r: float, loss_w: float) -> Gaussian:
+        self.reference_w = loss_w if loss_w > 0 else 1.0
+        return Gaussian(np.array([z, 0.0, z]), np.diag([r, self.gain_std**2, r + self.cold_std**2]))
+
+    def transition(self, dt: float, loss_w: float) -> tuple[np.ndarray, np.ndarray]:
+        a = math.exp(-dt / self.tau)
+        p = loss_w / self.reference_w
+        f = np.array([[a, (1.0 - a) * p, 1.0 - a], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        return f, np.diag([self.q_level * dt, 0.0, 0.0])
+
+    def observation(self, window_s: float, loss_w: float) -> np.ndarray:
+        h = 0.5 * window_s / self.tau  # y half a window ago, from dy/dt = (y0 + gP - y)/tau
+        return np.array([1.0 + h, -h * loss_w / self.reference_w, -h])
+
+    def rate(self, state: Gaussian, loss_w: float) -> float:
+        y, g, y0 = state.x
+        return float((y0 + g * loss_w / self.reference_w - y) / self.tau)
+
+    def shift(self, state: Gaussian, step: float, r: float) -> None:
+        # A step (a loose connection) moves the cold value with the present one.
+        state.x[0] += step
+        state.x[2] += step
+        state.P[0, :] = 0.0
+        state.P[:, 0] = 0.0
+        state.P[0, 0] = r
+
+
+def model_for(name: str, config: TrackerConfig, *, thermal_tau_s: float = 0.0) -> Model:
+    """The state model of parameter ``name`` under ``config``."""
+    per_minute = {"R": config.R_drift_per_min, "L": config.L_drift_per_min}
+    per_minute["K"] = config.K_drift_per_min
+    q = per_minute[name[0]] ** 2 / 60.0
+    if name[0] != "R":
+        return RandomWalk(q)
+    if thermal_tau_s > 0:
+        return Thermal(thermal_tau_s, q)
+    rate = config.R_rate_per_min / 60.0  # 1/s
+    # The rate wanders by about its typical size per minute.
+    return Trend(q, rate**2 / 60.0, rate)
+
+
+@dataclass(frozen=True)
+class TrackedParameter:
+    """The tracked state of one parameter after a window.
+
+    Attributes
+    ----------
+    value, std : float or None
+        Tracked value and one-sigma (SI units); None before any evidence.
+    status : str
+        ``ok`` (the window updated it), ``held`` (the window was no evidence
+        for it), ``outlier`` (beyond the gate: not used, but tested for a
+        change), ``change`` (a change is being confirmed: frozen), ``none``
+        (no evidence yet).
+    rate_per_min : float or None
+        Relative rate of change per minute (resistances), else None.
+    """
+
+    value: float | None
+    std: float | None
+    status: str
+    rate_per_min: float | None = None
+
+
+@dataclass(frozen=True)
+class ChangeEvent:
+    """A confirmed step of one parameter.
+
+    Attributes
+    ----------
+    parameter : str
+        ``Rf``, ``Lf``, ``Ra``, ``La`` or ``K``.
+    relative, relative_std : float
+        Size of the step (``after / before - 1``) and its one-sigma.
+    before, after : float
+        Tracked value before the change and the first window's fit after it.
+    t_change_ns : int
+        When it happened (within a hop).
+    t_detected_ns : int
+        End of the window that confirmed it.
+    """
+
+    parameter: str
+    relative: float
+    relative_std: float
+    before: float
+    after: float
+    t_change_ns: int
+    t_detected_ns: int
+
+
+#: Windows in a row whose fits must agree to show the level after a change span at
+#: least this long (s), and are at least three.
+SETTLE_S = 0.3
+
+
+@dataclass
+class _Transition:
+    """A change confirmed by the CUSUM, waiting for windows that show the new level."""
+
+    parameter: str
+    alarm: Alarm
+    before: Gaussian  # the state before the change ...
+    detected_ns: int
+    before_ns: int  # ... at this time
+    # (window end ns, log fit, its variance alone) of the latest windows with evidence
+    recent: deque[tuple[int, float, float]] = field(default_factory=lambda: deque(maxlen=3))
+
+
+@dataclass
+class _Track:
+    name: str
+    model: Model
+    cusum: Cusum
+    state: Gaussian | None = None
+    # (window end ns, state before that window's update) of the latest windows: a
+    # change is measured from the state before its CUSUM run began.
+    history: deque[tuple[int, Gaussian]] = field(default_factory=lambda: deque(maxlen=64))
+
+    def before(self, t_ns: int) -> tuple[int, Gaussian]:
+        """The state before the first window that ended at or after ``t_ns``, and that time.
+
+        The oldest kept state if all are later.
+        """
+        for when, state in self.history:
+            if when >= t_ns:
+                return when, state.copy()
+        assert self.state is not None and self.history
+        return self.history[-1][0], self.history[-1][1].copy()
+
+
+@dataclass(frozen=True)
+class TrackerStep:
+    """What one window did to the tracked state.
+
+    Attributes
+    ----------
+    parameters : dict
+        Parameter name -> :class:`TrackedParameter`.
+    changes : list of ChangeEvent
+        Changes confirmed in this window.
+    notes : list of str
+        Other decisions worth a line in the log (a change not borne out, a
+        change put down to the speed sensor).
+    """
+
+    parameters: dict[str, TrackedParameter]
+    changes: list[ChangeEvent] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+class MotorTracker:
+    """The tracked state of ``Rf, Lf, Ra, La, K``, window by window.
+
+    Parameters
+    ----------
+    config : TrackerConfig
+    window_s, hop_s : float
+        The sliding windows' length and hop (s): their overlap weighs the fits.
+    limits : mapping
+        Largest relative std of a window's fit, per parameter (``Rf`` ...), for
+        it to count as evidence.
+    """
+
+    def __init__(
+        self,
+        config: TrackerConfig,
+        *,
+        window_s: float,
+        hop_s: float,
+        limits: Mapping[str, float],
+    ) -> None:
+        self.config = config
+        self.window_s = window_s
+        self.overlap = max(1.0, window_s / hop_s)
+        self.settle_windows = max(3, 1 + math.ceil(SETTLE_S / hop_s - 1e-9))
+        self.limits = dict(limits)
+        taus = {"Rf": config.field_thermal_tau_s, "Ra": config.armature_thermal_tau_s}
+        min_change = {"R": config.min_change_R, "L": config.min_change_L, "K": config.min_change_K}
+        self.tracks = {
+            name: _Track(
+                name,
+                model_for(name, config, thermal_tau_s=taus.get(name, 0.0)),
+                Cusum(math.log1p(min_change[name[0]]), config.change_threshold),
+            )
+            for name in PARAMETERS
+        }
+        self.transitions: dict[str, _Transition] = {}  # circuit -> change being confirmed
+        # Log K of an apparent rise put down to a sensor (None: none pending), and the
+        # highest K tracked: the flux per field ampere does not rise by itself.
+        self._k_sensor_level: float | None = None
+        self._k_highest: float | None = None
+        self._last_ns: int | None = None
+        self._last_loss_w = 0.0
+        self.counts: dict[str, int] = {"changes": 0, "changes_not_borne_out": 0}
+
+    # ----------------------------------------------------------------- queries
+
+    def value(self, name: str) -> float | None:
+        """Tracked value of ``name`` (SI units), None before any evidence."""
+        state = self.tracks[name].state
+        return None if state is None else math.exp(float(state.x[0]))
+
+    def rel_std(self, name: str) -> float | None:
+        """Tracked one-sigma relative uncertainty of ``name``."""
+        state = self.tracks[name].state
+        return None if state is None else math.sqrt(max(float(state.P[0, 0]), 0.0))
+
+    def in_transition(self, circuit: str) -> bool:
+        """Whether a change of ``circuit`` is being confirmed (its parameters frozen)."""
+        return circuit in self.transitions
+
+    # ----------------------------------------------------------------- one window
+
+    def step(
+        self,
+        t_ns: int,
+        evidence: Mapping[str, Evidence | None],
+        *,
+        loss_w: float | None = None,
+        distrust: frozenset[str] = frozenset(),
+    ) -> TrackerStep:
+        """Advance to ``t_ns`` (the window's end) and take in the window's fits.
+
+        Parameters
+        ----------
+        t_ns : int
+            End of the window (ns); windows come in increasing time.
+        evidence : mapping
+            Parameter -> its fit in this window, or None (not evidence).
+        loss_w : float, optional
+            The machine's copper loss over the last hop (W), for thermal models;
+            None: as in the last window.
+        distrust : frozenset of str
+            Parameters whose fits are known to be misled this window (``K``
+            while the speed sensor reads low): they are held, and a rise of
+            theirs confirmed meanwhile is not taken as a change.
+        """
+        if loss_w is not None and math.isfinite(loss_w):
+            self._last_loss_w = loss_w
+        loss = self._last_loss_w
+        dt = 0.0 if self._last_ns is None else max(0.0, (t_ns - self._last_ns) / 1e9)
+        self._last_ns = t_ns
+        step = TrackerStep(parameters={})
+        for track in self.tracks.values():
+            if track.state is not None and dt > 0:
+                predict(track.state, *track.model.transition(dt, loss))
+        status: dict[str, str] = {}
+        for circuit in ("field", "armature"):
+            if circuit in self.transitions:
+                self._continue_transition(circuit, t_ns, evidence, loss, distrust, step, status)
+        for name, track in self.tracks.items():
+            if name in status:
+                continue
+            ev = evidence.get(name)
+            if ev is None or name in distrust or not self._usable(name, ev):
+                status[name] = "held" if track.state is not None else "none"
+                continue
+            if name == "K" and self._k_sensor_level is not None and track.state is not None:
+                # After an apparent rise of K put down to a sensor: fits nearer that
+                # level than the tracked K are the sensor's error, not the motor.
+                z_fit = math.log(ev.value)
+                if abs(z_fit - self._k_sensor_level) < abs(z_fit - float(track.state.x[0])):
+                    status[name] = "held"
+                    continue
+                self._k_sensor_level = None
+            z = math.log(ev.value)
+            r, alone = self._measurement_variance(track, ev, loss)
+            if track.state is None:
+                track.state = track.model.initial(z, r, loss)
+                status[name] = "ok"
+                continue
+            row = track.model.observation(self.window_s, loss)
+            nu, s = innovation(track.state, row, z, r)
+            track.history.append((t_ns, track.state.copy()))
+            alarm = track.cusum.update(nu, s, t_ns)
+            if alarm is not None:
+                circuit = LOCATION[name][0]
+                # Windows ending a window or more before the run began hold no sample
+                # after the change (the run begins within a window of it); later ones
+                # may have been taken in while they showed less than half a change.
+                clean_ns = alarm.started_ns - int(round(self.window_s * 1e9)) + 1
+                clean_ns, before = track.before(clean_ns)
+                tr = _Transition(name, alarm, before, t_ns, clean_ns)
+                tr.recent = deque(maxlen=self.settle_windows)
+                tr.recent.append((t_ns, z, alone))
+                self.transitions[circuit] = tr
+                for other in self._circuit(circuit):
+                    self.tracks[other].cusum.reset()
+                    status[other] = "change"
+                continue
+            if self._outlier(name, nu, s - r + alone):
+                status[name] = "outlier"
+                continue
+            update(track.state, row, nu, s)
+            status[name] = "ok"
+        k_state = self.tracks["K"].state
+        if k_state is not None and status.get("K") == "ok" and "armature" not in self.transitions:
+            level = float(k_state.x[0])
+            self._k_highest = level if self._k_highest is None else max(self._k_highest, level)
+        for name, track in self.tracks.items():
+            st = track.state
+            value = None if st is None else math.exp(float(st.x[0]))
+            std = None if st is None or value is None else value * math.sqrt(float(st.P[0, 0]))
+            rate = None
+            if st is not None and name[0] == "R":
+                rate = 60.0 * track.model.rate(st, loss)
+            step.parameters[name] = TrackedParameter(value, std, status[name], rate)
+        return step
+
+    def _usable(self, name: str, ev: Evidence) -> bool:
+        limit = self.limits[name]
+        return (
+            math.isfinite(ev.value) and ev.value > 0 and math.isfinite(ev.rel_std)
+            and 0 <= ev.rel_std <= limit
+        )  # fmt: skip
+
+    def _measurement_variance(
+        self, track: _Track, ev: Evidence, loss: float
+    ) -> tuple[float, float]:
+        """Variance of a fit as one of overlapping windows (for weighing), and alone.
+
+        Weighed, a window counts as ``1 / overlap`` of an independent one;
+        alone (comparing one window with the state) it has its own variance.
+        """
+        alone = ev.rel_std**2
+        if track.state is not None:
+            # A constant-parameter fit of a moving parameter: the fit stands for
+            # some instant of the window, which one depends on where its
+            # information lies.
+            rate = track.model.rate(track.state, loss)
+            alone += (rate * self.window_s) ** 2 / 12.0
+        return self.overlap * alone, alone
+
+    def _outlier(self, name: str, nu: float, variance: float) -> bool:
+        """Beyond the gate of a window alone, and beyond half the smallest change.
+
+        Innovations below half the smallest change are always taken: the change
+        test ignores them, so gating them would leave a tracker that has fallen
+        behind stuck there.
+        """
+        half = 0.5 * math.log1p(self._min_change(name))
+        return abs(nu) > half and nu * nu > self.config.gate_sigma**2 * variance
+
+    @staticmethod
+    def _circuit(circuit: str) -> list[str]:
+        return [p for p in PARAMETERS if LOCATION[p][0] == circuit]
+
+    def _continue_transition(
+        self,
+        circuit: str,
+        t_ns: int,
+        evidence: Mapping[str, Evidence | None],
+        loss: float,
+        distrust: frozenset[str],
+        step: TrackerStep,
+        status: dict[str, str],
+    ) -> None:
+        """Hold the circuit until windows show the new level; then confirm the change or drop it.
+
+        The new level shows in windows in a row (with evidence, spanning
+        ``SETTLE_S``) that agree within their noise and closer than windows
+        sliding across the step would:
+        windows across a step describe neither side and slide from one to the
+        other, so until then the circuit's parameters are frozen. Fits that keep
+        sliding (a parameter the windows no longer identify drifting off) never
+        settle: after ``change_wait_s`` the parameter's uncertainty is widened
+        instead of a change being reported.
+        """
+        tr = self.transitions[circuit]
+        names = self._circuit(circuit)
+        m = math.log1p(self._min_change(tr.parameter))
+        ev = evidence.get(tr.parameter)
+        usable = ev is not None and self._usable(tr.parameter, ev)
+        if usable:
+            assert ev is not None
+            tr.recent.append((t_ns, math.log(ev.value), ev.rel_std**2))
+        zs = [z for _, z, _ in tr.recent]
+        # Consecutive windows agreeing within their noise, and closer than windows sliding
+        # across the step would be (they move by a share hop/window of it per window).
+        noise = 3.0 * math.sqrt(max(v for _, _, v in tr.recent))
+        size = abs(sum(zs) / len(zs) - float(tr.before.x[0]))
+        spread = min(noise, max(0.5 * m, 0.25 * size))
+        settled = len(zs) == tr.recent.maxlen and max(zs) - min(zs) <= spread
+        if not settled:
+            if (t_ns - tr.detected_ns) / 1e9 <= self.config.change_wait_s:
+                for name in names:
+                    status[name] = "change"
+                return
+            # No window after the change has shown the parameter: let it re-converge.
+            del self.transitions[circuit]
+            track = self.tracks[tr.parameter]
+            assert track.state is not None
+            track.state.P[0, 0] += m**2
+            step.notes.append(
+                f"{tr.parameter}: a change was seen but no window after it identified "
+                f"{tr.parameter}; its uncertainty is widened instead"
+            )
+            return
+        del self.transitions[circuit]
+        # The latest window is the one most wholly after the change (and the windows
+        # are too correlated for their mean to be worth more).
+        z, alone = tr.recent[-1][1], tr.recent[-1][2]
+        first_ns = tr.recent[0][0]
+        r = self.overlap * alone
+        track = self.tracks[tr.parameter]
+        assert track.state is not None
+        before = tr.before  # carried to now: the change is the difference of levels now
+        gap = (t_ns - tr.before_ns) / 1e9
+        if gap > 0:
+            predict(before, *track.model.transition(gap, loss))
+            tr.before_ns = t_ns
+        d = z - float(before.x[0])
+        var_d = float(before.P[0, 0]) + alone
+        beyond_highest = (
+            tr.parameter == "K" and self._k_highest is not None
+            and z > self._k_highest + 0.5 * m
+        )  # fmt: skip
+        if d > 0 and (tr.parameter in distrust or beyond_highest):
+            # K*if*omega is all the armature equation knows: a speed (or field current)
+            # sensor reading low looks like a higher K, which a field does not do.
+            step.notes.append(
+                f"{tr.parameter} seemed to rise {100 * math.expm1(d):+.1f} % above any level "
+                f"tracked: put down to the speed or field current sensor reading low, "
+                f"{tr.parameter} kept"
+            )
+            if tr.parameter == "K":
+                self._k_sensor_level = z
+            for name in names:
+                self.tracks[name].cusum.reset()
+                status[name] = "held"
+            return
+        if abs(d) >= 0.5 * m and d * d < self.config.gate_sigma**2 * var_d:
+            # Large but not yet sure (a weak window): wait for a better one.
+            if (t_ns - tr.detected_ns) / 1e9 <= self.config.change_wait_s:
+                self.transitions[circuit] = tr
+                for name in names:
+                    status[name] = "change"
+                return
+        if abs(d) < 0.5 * m or d * d < self.config.gate_sigma**2 * var_d:
+            self.counts["changes_not_borne_out"] += 1
+            step.notes.append(
+                f"{tr.parameter}: a change was signalled but the windows after it differ by "
+                f"only {100 * math.expm1(d):+.2f} %; tracking goes on"
+            )
+            return  # this window is then used as any other (its status set by the caller)
+        # From the state before the change (the windows across it may have bent its rate).
+        track.state = before.copy()
+        track.model.shift(track.state, d, r)
+        self.counts["changes"] += 1
+        # The first window showing the new level wholly started after the change.
+        wholly_after = first_ns - int(round(self.window_s * 1e9))
+        step.changes.append(
+            ChangeEvent(
+                parameter=tr.parameter,
+                relative=math.expm1(d),
+                relative_std=math.sqrt(var_d) * math.exp(d),
+                before=math.exp(float(before.x[0])),
+                after=math.exp(z),
+                t_change_ns=max(
+                    min(self._change_time(tr, d), wholly_after),
+                    wholly_after - int(round(0.5 * self.window_s * 1e9)),
+                ),
+                t_detected_ns=t_ns,
+            )
+        )
+        for name in names:
+            self.tracks[name].cusum.reset()
+        status[tr.parameter] = "ok"  # the circuit's others take this window as usual
+
+    def _change_time(self, tr: _Transition, step: float) -> int:
+        """When the change happened: before the first window of the CUSUM run.
+
+        A window that holds a fraction ``f`` of its samples after a step ``d``
+        fits about ``f * d``; the run starts once that exceeds half the
+        smallest change tested, so it began ``(m / 2) / |d|`` of a window (and
+        half a hop) before the run's first window ended.
+        """
+        m = math.log1p(self._min_change(tr.parameter))
+        before_s = min(1.0, 0.5 * m / max(abs(step), 1e-12)) * self.window_s
+        hop_s = self.window_s / self.overlap
+        return tr.alarm.started_ns - int(round((before_s + 0.5 * hop_s) * 1e9))
+
+    def _min_change(self, name: str) -> float:
+        c = self.config
+        return {"R": c.min_change_R, "L": c.min_change_L, "K": c.min_change_K}[name[0]]
+
+
+def winding_temperature(
+    resistance_ohm: float, rel_std: float, r_ref_ohm: float, alpha_per_k: float, t_ref_c: float
+) -> tuple[float, float]:
+    """Winding temperature (deg C) and its one-sigma from the resistance.
+
+    ``R = R_ref * (1 + alpha * (T - T_ref))`` (copper: ``alpha = 0.00393 /K`` at 20 deg C).
+    """
+    temperature = t_ref_c + (resistance_ohm / r_ref_ohm - 1.0) / alpha_per_k
+    return temperature, resistance_ohm * rel_std / (r_ref_ohm * alpha_per_k)
