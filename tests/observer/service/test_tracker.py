@@ -83,6 +83,12 @@ def test_weak_window_barely_moves_the_state_and_a_strong_one_corrects_it():
     held = trk.step(t, {"K": Evidence(2.0, 0.5)})
     assert held.parameters["K"].status == "held"
     assert held.parameters["K"].value == pytest.approx(1.12 * 1.002, rel=1e-4)
+    # So is a fit whose std is unusable: zero would claim infinite weight.
+    for rel_std in (0.0, math.nan, math.inf, -1e-3):
+        t += 10**9
+        unusable = trk.step(t, {"K": Evidence(2.0, rel_std)})
+        assert unusable.parameters["K"].status == "held"
+        assert unusable.parameters["K"].value == pytest.approx(1.12 * 1.002, rel=1e-4)
 
 
 def test_published_std_covers_the_error_of_overlapping_windows():
