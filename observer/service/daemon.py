@@ -160,6 +160,8 @@ class Daemon:
         self._acq = threading.Thread(target=self._acquire, name="acquisition", daemon=True)
         self._obs = threading.Thread(target=self._observe, name="observer", daemon=True)
         self._watchdog_s = sdnotify.watchdog_interval_s()
+        self._next_health = 0.0  # monotonic times (s) health and the watchdog ping are due
+        self._next_ping = 0.0
         self.observer_error = ""
 
     # ------------------------------------------------------------------ lifecycle
@@ -219,8 +221,8 @@ class Daemon:
 
     def _observe(self) -> None:
         hop = self.config.observer.hop_s
-        next_health = time.monotonic() + self.config.observer.health_s
-        next_ping = 0.0
+        self._next_health = time.monotonic() + self.config.observer.health_s
+        self._next_ping = 0.0
         while not self._stop.is_set():
             try:
                 due = self.observer.next_due_ns()
@@ -232,23 +234,30 @@ class Daemon:
                 for result in self.observer.process_ready(live=True):
                     self._emit(result)
                     self._log_new_samples()
+                    # An observer slower than the data never leaves this loop: health
+                    # and the watchdog must not wait for it to catch up.
+                    self._periodic()
             except Exception as exc:  # never die silently: count, log, go on
                 self.observer.counts["observer_errors"] += 1
                 self.observer_error = f"{type(exc).__name__}: {exc}"
                 log.exception("observer loop error")
-            now = time.monotonic()
-            if self._watchdog_s is not None and now >= next_ping:
-                sdnotify.watchdog()
-                next_ping = now + self._watchdog_s
-            if now >= next_health:
-                self.emit_health()
-                next_health = now + self.config.observer.health_s
+            self._periodic()
             if self.source_ended.is_set() and not self._more_ready():
                 self._log_new_samples()
                 self.emit_health(state="source_ended")
                 self.finished.set()
                 return
         self._log_new_samples()
+
+    def _periodic(self) -> None:
+        """Ping the watchdog and emit health when they are due."""
+        now = time.monotonic()
+        if self._watchdog_s is not None and now >= self._next_ping:
+            sdnotify.watchdog()
+            self._next_ping = now + self._watchdog_s
+        if now >= self._next_health:
+            self.emit_health()
+            self._next_health = now + self.config.observer.health_s
 
     def _more_ready(self) -> bool:
         due = self.observer.next_due_ns()
