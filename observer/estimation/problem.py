@@ -24,9 +24,9 @@ from observer.estimation.intersample import (
     Segments,
     Switching,
     build_input,
-    cubic_moments,
     find_switching,
     rail_samples,
+    smooth_moments,
 )
 from observer.estimation.pso import CostFunction
 
@@ -71,7 +71,7 @@ class WindingProblem:
 
     def __post_init__(self) -> None:
         if self.emf is not None:
-            self._mu_emf = cubic_moments(self.emf, self.inp.segments, 0.0)
+            self._mu_emf = smooth_moments(self.emf, self.inp.segments, 0.0)
         if self.lag == 0.0:
             self._mu_cache[(self.inp.shift, 0.0)] = self.inp.mu
         if self.inp.model in ("hold", "averaged"):
@@ -104,11 +104,11 @@ class WindingProblem:
         mu = self._mu_cache.get(key)
         if mu is None:
             seg = self.inp.segments
-            mu = cubic_moments(self.voltage, seg, key[0])
+            mu = smooth_moments(self.voltage, seg, key[0])
             if lag_ > 0.0:
                 lagged = np.array(self.voltage, dtype=np.float64)
                 ik.lag_samples(mu, self.voltage, seg.starts, seg.ends, lag_, lagged)
-                mu = cubic_moments(lagged, seg, 0.0)
+                mu = smooth_moments(lagged, seg, 0.0)
             if len(self._mu_cache) > 64:
                 self._mu_cache.clear()
             self._mu_cache[key] = mu
@@ -198,6 +198,27 @@ class WindingProblem:
             seg.starts, seg.ends, self.dt, self.emf is not None, out, initial,
         )  # fmt: skip
         return out, initial
+
+    def offset_column(self, theta: np.ndarray) -> np.ndarray:
+        """d(residual)/d(voltage offset) at ``theta``: the residual's change per volt added.
+
+        The residual is affine in the voltage (initial currents projected out
+        again), so one more evaluation with every interval's mean raised by
+        1 V gives it exactly.
+        """
+        resistance, inductance, k, shift = self.unpack(theta)
+        mu = self.mu(shift, self.lag_of(theta))
+        seg = self.inp.segments
+        out = []
+        for moments in (mu, mu + np.array([1.0, 0.0, 0.0])):
+            r = np.empty(seg.covered)
+            initial = np.empty(seg.count)
+            ik.moment_residual(
+                resistance, inductance, k, moments, self.mu_emf, self.current,
+                seg.starts, seg.ends, self.dt, self.emf is not None, r, initial,
+            )  # fmt: skip
+            out.append(r)
+        return out[1] - out[0]
 
     def best_k(self, resistance: float, inductance: float, shift: float) -> float:
         """``K`` solved in closed form at ``(R, L, shift)`` (the held value if held)."""

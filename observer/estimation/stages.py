@@ -35,6 +35,14 @@ COMPENSATION_FACTOR = 1.5
 #: variances: one extra parameter (the shift) alone lowers it by about one.
 SMOOTH_OVER_HOLD = 25.0
 
+#: Relative uncertainty no window of a *measured* voltage (every model but
+#: ``hold``) goes below: the reconstruction between samples and the front ends
+#: leave systematic errors of this size on simulated converter chains (K
+#: 0.03-0.1 %, La 0.3-0.5 % at 5 kHz) that no noise term describes, and a real
+#: winding adds its own (R warming over the window, L following the current).
+#: A held voltage is the drive's own reference, exact by construction.
+MODEL_FLOOR = {"R": 0.001, "L": 0.002, "K": 0.0005}
+
 #: A cubic read this many periods late imitates a held voltage (sample periods),
 #: within ``HOLD_SHIFT_WIDTH``.
 HOLD_SHIFT = -0.5
@@ -333,20 +341,60 @@ def std_stage(
     (:func:`~observer.estimation.uncertainty.crlb_std`, relative in ``R`` and
     ``L``), combined with the bound on the errors-in-variables bias and the
     model error of the specification test (:func:`specification_stage`).
+    For the armature the bound treats the voltage channel's offset as an
+    unknown unless the voltage is held (a drive's reference, not a sensor's
+    reading): every voltage sensor has one (a few tenths of a percent of its
+    range), ``Ra*ia`` is a tenth or less of ``va``, and in a window whose
+    current and speed are nearly steady an offset moves ``Ra`` and ``K``
+    along the one direction the data cannot resolve (a 0.5 V offset on a
+    550 V channel moves ``Ra`` by 1-1.5 %); the same direction carries the
+    intersample and front-end errors that shift the window's optimum.
     """
     theta = fit.theta
     tau_samples = math.exp(theta[1] - theta[0]) / problem.dt
-    std = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
+    jac = fit.jacobian
+    measured = problem.inp.model != "hold"
+    if problem.fits_k and measured:
+        # An unknown constant offset of the voltage channel is a nuisance
+        # parameter of the armature: with it, a window whose current and speed
+        # barely vary cannot tell R*ia from K*if*omega and says so.
+        jac = np.column_stack([jac, problem.offset_column(theta)])
+    std = crlb_std(jac, fit.point.residual, tau_samples)
     point = eiv.point
     model = spec.model_std if spec is not None else np.zeros(3)
+    floor = MODEL_FLOOR if measured else {"R": 0.0, "L": 0.0, "K": 0.0}
     out = {
-        "R": float(np.linalg.norm([point.resistance_ohm * std[0], eiv.bias_bound[0], model[0]])),
-        "L": float(np.linalg.norm([point.inductance_h * std[1], eiv.bias_bound[1], model[1]])),
+        "R": float(
+            np.linalg.norm(
+                [
+                    point.resistance_ohm * std[0],
+                    eiv.bias_bound[0],
+                    model[0],
+                    floor["R"] * point.resistance_ohm,
+                ]
+            )
+        ),  # fmt: skip
+        "L": float(
+            np.linalg.norm(
+                [
+                    point.inductance_h * std[1],
+                    eiv.bias_bound[1],
+                    model[1],
+                    floor["L"] * point.inductance_h,
+                ]
+            )
+        ),  # fmt: skip
     }
     i = 2
     if problem.emf is not None:
         out["K"] = (
-            float(np.linalg.norm([std[i], eiv.bias_bound[2], model[2]])) if problem.fits_k else 0.0
+            float(
+                np.linalg.norm(
+                    [std[i], eiv.bias_bound[2], model[2], floor["K"] * abs(point.emf_constant_h)]
+                )
+            )
+            if problem.fits_k
+            else 0.0
         )
         i += int(problem.fits_k)
     if problem.fit_shift:
