@@ -43,6 +43,12 @@ SMOOTH_OVER_HOLD = 25.0
 #: A held voltage is the drive's own reference, exact by construction.
 MODEL_FLOOR = {"R": 0.001, "L": 0.002, "K": 0.0005}
 
+#: An armature voltage offset of this share of the window's mean |va| is assumed
+#: possible: a voltage sensor's offset (0.1-0.5 % of its range, about twice the
+#: rated voltage) or the brush drop (1-2 V at any current) that a drive's
+#: reference voltage does not show.
+OFFSET_SHARE = 0.001
+
 #: A cubic read this many periods late imitates a held voltage (sample periods),
 #: within ``HOLD_SHIFT_WIDTH``.
 HOLD_SHIFT = -0.5
@@ -329,6 +335,11 @@ def specification_stage(
     return SpecificationTest(values_lp, model_std)
 
 
+def _combined(*terms: float) -> float:
+    """Independent one-sigma terms in quadrature."""
+    return float(np.linalg.norm(terms))
+
+
 def std_stage(
     problem: WindingProblem,
     fit: PolishedFit,
@@ -341,10 +352,10 @@ def std_stage(
     (:func:`~observer.estimation.uncertainty.crlb_std`, relative in ``R`` and
     ``L``), combined with the bound on the errors-in-variables bias and the
     model error of the specification test (:func:`specification_stage`).
-    For the armature the bound treats the voltage channel's offset as an
-    unknown unless the voltage is held (a drive's reference, not a sensor's
-    reading): every voltage sensor has one (a few tenths of a percent of its
-    range), ``Ra*ia`` is a tenth or less of ``va``, and in a window whose
+    For the armature the bound treats an offset of the voltage as an
+    unknown (:data:`OFFSET_SHARE`): every voltage sensor has one (a few tenths
+    of a percent of its range), a drive's reference voltage differs from the
+    terminals' by the brush drop, ``Ra*ia`` is a tenth or less of ``va``, and in a window whose
     current and speed are nearly steady an offset moves ``Ra`` and ``K``
     along the one direction the data cannot resolve (a 0.5 V offset on a
     550 V channel moves ``Ra`` by 1-1.5 %); the same direction carries the
@@ -354,45 +365,42 @@ def std_stage(
     tau_samples = math.exp(theta[1] - theta[0]) / problem.dt
     jac = fit.jacobian
     measured = problem.inp.model != "hold"
-    if problem.fits_k and measured:
-        # An unknown constant offset of the voltage channel is a nuisance
-        # parameter of the armature: with it, a window whose current and speed
-        # barely vary cannot tell R*ia from K*if*omega and says so.
-        jac = np.column_stack([jac, problem.offset_column(theta)])
+    offset = np.zeros(3)
+    if problem.fits_k:
+        column = problem.offset_column(theta)
+        # The unknown offset as a free nuisance parameter: a window whose
+        # current and speed barely vary cannot tell R*ia from K*if*omega.
+        jac = np.column_stack([jac, column])
+        # And the bias an offset of a plausible size leaves where it can be
+        # told apart (the estimate does not fit it).
+        sensitivity = np.linalg.lstsq(fit.jacobian, column, rcond=None)[0]
+        volts = OFFSET_SHARE * float(np.mean(np.abs(problem.voltage)))
+        offset = np.abs(sensitivity[:3]) * volts
+        offset[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
     std = crlb_std(jac, fit.point.residual, tau_samples)
     point = eiv.point
     model = spec.model_std if spec is not None else np.zeros(3)
     floor = MODEL_FLOOR if measured else {"R": 0.0, "L": 0.0, "K": 0.0}
     out = {
-        "R": float(
-            np.linalg.norm(
-                [
-                    point.resistance_ohm * std[0],
-                    eiv.bias_bound[0],
-                    model[0],
-                    floor["R"] * point.resistance_ohm,
-                ]
-            )
-        ),  # fmt: skip
-        "L": float(
-            np.linalg.norm(
-                [
-                    point.inductance_h * std[1],
-                    eiv.bias_bound[1],
-                    model[1],
-                    floor["L"] * point.inductance_h,
-                ]
-            )
-        ),  # fmt: skip
-    }
+        "R": _combined(
+            point.resistance_ohm * std[0], eiv.bias_bound[0], model[0], offset[0],
+            floor["R"] * point.resistance_ohm,
+        ),
+        "L": _combined(
+            point.inductance_h * std[1], eiv.bias_bound[1], model[1], offset[1],
+            floor["L"] * point.inductance_h,
+        ),
+    }  # fmt: skip
     i = 2
     if problem.emf is not None:
         out["K"] = (
-            float(
-                np.linalg.norm(
-                    [std[i], eiv.bias_bound[2], model[2], floor["K"] * abs(point.emf_constant_h)]
-                )
-            )
+            _combined(
+                std[i],
+                eiv.bias_bound[2],
+                model[2],
+                offset[2],
+                floor["K"] * abs(point.emf_constant_h),
+            )  # fmt: skip
             if problem.fits_k
             else 0.0
         )

@@ -8,6 +8,7 @@ import pytest
 from observer.estimation import armature_search_range, estimate_armature
 from observer.estimation.armature import armature_problem
 from observer.estimation.stages import (
+    OFFSET_SHARE,
     EivCorrection,
     SwarmSettings,
     eiv_stage,
@@ -72,17 +73,58 @@ def test_polish_lowers_the_swarms_residual(window):
     assert fit.jacobian.shape == (problem.segments.covered, 3)  # ln R, ln L, K
 
 
-def test_without_corrections_the_uncertainty_is_the_sandwich_bound(window):
+def test_without_corrections_the_uncertainty_is_the_sandwich_bound_with_an_unknown_offset(window):
     problem = _problem(window, "hold")
     bounds = _bounds(window)
     result = swarm_stage(problem, bounds, SETTINGS, np.random.default_rng(5))
     fit = polish_stage(problem, result, bounds)
     std = std_stage(problem, fit, EivCorrection(fit.point, 0.0, np.zeros(3)))
     tau_samples = np.exp(fit.theta[1] - fit.theta[0]) / window["dt"]
-    bound = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
-    assert std["R"] == pytest.approx(fit.point.resistance_ohm * bound[0])
-    assert std["L"] == pytest.approx(fit.point.inductance_h * bound[1])
-    assert std["K"] == pytest.approx(bound[2])
+    column = problem.offset_column(fit.theta)
+    bound = crlb_std(np.column_stack([fit.jacobian, column]), fit.point.residual, tau_samples)
+    volts = OFFSET_SHARE * np.mean(np.abs(window["va"]))
+    bias = np.abs(np.linalg.lstsq(fit.jacobian, column, rcond=None)[0][:3]) * volts
+    r, ell = fit.point.resistance_ohm, fit.point.inductance_h
+    assert std["R"] == pytest.approx(np.hypot(r * bound[0], r * bias[0]))
+    assert std["L"] == pytest.approx(np.hypot(ell * bound[1], ell * bias[1]))
+    assert std["K"] == pytest.approx(np.hypot(bound[2], bias[2]))
+    # The offset is what Ra and K cannot be told apart from: it widens them.
+    plain = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
+    assert bound[0] > plain[0] and bound[2] > plain[2]
+
+
+def test_the_offset_column_is_the_residuals_change_per_volt(window):
+    problem = _problem(window, "hold")
+    bounds = _bounds(window)
+    fit = polish_stage(
+        problem, swarm_stage(problem, bounds, SETTINGS, np.random.default_rng(6)), bounds
+    )
+    raised = armature_problem(
+        window["va"] + 1.0, window["ia"], window["if"], window["omega"], window["dt"],
+        intersample="hold",
+    )  # fmt: skip
+    np.testing.assert_allclose(
+        problem.offset_column(fit.theta),
+        raised.residual(fit.theta) - problem.residual(fit.theta),
+        atol=1e-9,
+    )
+
+
+@pytest.mark.parametrize("offset_share", [0.001, 0.002])
+def test_a_voltage_offset_moves_ra_within_its_reported_uncertainty(window, offset_share):
+    """An offset of a few tenths of a percent of the voltage (a sensor's calibration) stays
+    inside 2.5 std of Ra and K, although it moves Ra by many noise-only stds."""
+    offset = offset_share * float(np.mean(np.abs(window["va"])))
+    kw = dict(rng=3, n_particles=40, max_iterations=40, intersample="hold")
+    clean = estimate_armature(
+        window["va"], window["ia"], window["if"], window["omega"], window["dt"], **kw
+    )
+    shifted = estimate_armature(
+        window["va"] + offset, window["ia"], window["if"], window["omega"], window["dt"], **kw
+    )
+    moved = abs(shifted.resistance_ohm - clean.resistance_ohm)
+    assert moved < 2.5 * shifted.std["R"]
+    assert abs(shifted.emf_constant_h - clean.emf_constant_h) < 2.5 * shifted.std["K"]
 
 
 def test_a_correction_moves_the_estimate_by_at_most_the_search_factor(window):
