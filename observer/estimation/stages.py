@@ -352,10 +352,10 @@ def std_stage(
     (:func:`~observer.estimation.uncertainty.crlb_std`, relative in ``R`` and
     ``L``), combined with the bound on the errors-in-variables bias and the
     model error of the specification test (:func:`specification_stage`).
-    For the armature the bound treats an offset of the voltage as an
-    unknown (:data:`OFFSET_SHARE`): every voltage sensor has one (a few tenths
-    of a percent of its range), a drive's reference voltage differs from the
-    terminals' by the brush drop, ``Ra*ia`` is a tenth or less of ``va``, and in a window whose
+    For the armature the bound treats an offset of a *measured* voltage (any
+    model but ``hold``, which is the drive's own reference) as an unknown
+    (:data:`OFFSET_SHARE`): every voltage sensor has one (a few tenths
+    of a percent of its range), ``Ra*ia`` is a tenth or less of ``va``, and in a window whose
     current and speed are nearly steady an offset moves ``Ra`` and ``K``
     along the one direction the data cannot resolve (a 0.5 V offset on a
     550 V channel moves ``Ra`` by 1-1.5 %); the same direction carries the
@@ -366,7 +366,7 @@ def std_stage(
     jac = fit.jacobian
     measured = problem.inp.model != "hold"
     offset = np.zeros(3)
-    if problem.fits_k:
+    if problem.fits_k and measured:
         column = problem.offset_column(theta)
         # The unknown offset as a free nuisance parameter: a window whose
         # current and speed barely vary cannot tell R*ia from K*if*omega.

@@ -8,6 +8,7 @@ import pytest
 from observer.estimation import armature_search_range, estimate_armature
 from observer.estimation.armature import armature_problem
 from observer.estimation.stages import (
+    MODEL_FLOOR,
     OFFSET_SHARE,
     EivCorrection,
     SwarmSettings,
@@ -73,8 +74,22 @@ def test_polish_lowers_the_swarms_residual(window):
     assert fit.jacobian.shape == (problem.segments.covered, 3)  # ln R, ln L, K
 
 
-def test_without_corrections_the_uncertainty_is_the_sandwich_bound_with_an_unknown_offset(window):
+def test_without_corrections_the_uncertainty_is_the_sandwich_bound(window):
     problem = _problem(window, "hold")
+    bounds = _bounds(window)
+    result = swarm_stage(problem, bounds, SETTINGS, np.random.default_rng(5))
+    fit = polish_stage(problem, result, bounds)
+    std = std_stage(problem, fit, EivCorrection(fit.point, 0.0, np.zeros(3)))
+    tau_samples = np.exp(fit.theta[1] - fit.theta[0]) / window["dt"]
+    bound = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
+    assert std["R"] == pytest.approx(fit.point.resistance_ohm * bound[0])
+    assert std["L"] == pytest.approx(fit.point.inductance_h * bound[1])
+    assert std["K"] == pytest.approx(bound[2])
+
+
+def test_a_measured_voltage_adds_an_unknown_offset_and_the_model_floor(window):
+    """A held voltage is the drive's reference (above); a measured one has an offset."""
+    problem = _problem(window, "smooth")
     bounds = _bounds(window)
     result = swarm_stage(problem, bounds, SETTINGS, np.random.default_rng(5))
     fit = polish_stage(problem, result, bounds)
@@ -84,10 +99,13 @@ def test_without_corrections_the_uncertainty_is_the_sandwich_bound_with_an_unkno
     bound = crlb_std(np.column_stack([fit.jacobian, column]), fit.point.residual, tau_samples)
     volts = OFFSET_SHARE * np.mean(np.abs(window["va"]))
     bias = np.abs(np.linalg.lstsq(fit.jacobian, column, rcond=None)[0][:3]) * volts
-    r, ell = fit.point.resistance_ohm, fit.point.inductance_h
-    assert std["R"] == pytest.approx(np.hypot(r * bound[0], r * bias[0]))
-    assert std["L"] == pytest.approx(np.hypot(ell * bound[1], ell * bias[1]))
-    assert std["K"] == pytest.approx(np.hypot(bound[2], bias[2]))
+    r, ell, k = fit.point.resistance_ohm, fit.point.inductance_h, fit.point.emf_constant_h
+    floor = MODEL_FLOOR
+    assert std["R"] == pytest.approx(np.linalg.norm([r * bound[0], r * bias[0], r * floor["R"]]))
+    assert std["L"] == pytest.approx(
+        np.linalg.norm([ell * bound[1], ell * bias[1], ell * floor["L"]])
+    )
+    assert std["K"] == pytest.approx(np.linalg.norm([bound[2], bias[2], abs(k) * floor["K"]]))
     # The offset is what Ra and K cannot be told apart from: it widens them.
     plain = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
     assert bound[0] > plain[0] and bound[2] > plain[2]
@@ -115,7 +133,7 @@ def test_a_voltage_offset_moves_ra_within_its_reported_uncertainty(window, offse
     """An offset of a few tenths of a percent of the voltage (a sensor's calibration) stays
     inside 2.5 std of Ra and K, although it moves Ra by many noise-only stds."""
     offset = offset_share * float(np.mean(np.abs(window["va"])))
-    kw = dict(rng=3, n_particles=40, max_iterations=40, intersample="hold")
+    kw = dict(rng=3, n_particles=40, max_iterations=40, intersample="smooth", fit_shift=False)
     clean = estimate_armature(
         window["va"], window["ia"], window["if"], window["omega"], window["dt"], **kw
     )
