@@ -1,0 +1,215 @@
+"""Accuracy of the whole-recording estimator on converter-fed recordings (a benchmark, not a test).
+
+For every sample rate, converter and seed: simulate a healthy motor (P-12 by default) for 30 s
+behind a real drive and a realistic measurement chain (2nd-order Butterworth anti-aliasing filter
+at fs/4 and a 12-bit ADC on every channel, 0.2 % sensor noise: the ``realistic`` preset's
+chain), estimate both windings with the API ``dcobserver estimate`` uses
+(:func:`observer.estimation.estimate_recording`), giving it the chain the recording was made
+through (:meth:`observer.simulation.chain.MeasurementChain.to_config`, the ``[chain]`` a user
+would configure), and compare with the truth. The table gives, per rate, converter and
+parameter, the median and the largest |error| in percent, the median |error / std| (an
+honest std gives about 0.67) and in how many recordings the estimator said its model does not
+describe the circuit (``describes_window`` false: the values are then not to be used).
+
+Drives: ``thyristor`` is the dual 6-pulse bridge on 50 Hz with the single-phase field bridge
+(the ``realistic`` preset), ``chopper`` the 4-quadrant H-bridge at 2 kHz with a field chopper.
+
+    python -m bench.accuracy_rates --seeds 20 --out bench/accuracy_rates.jsonl   # the full run
+    python -m bench.accuracy_rates --seeds 2                                     # a smoke run
+
+Results are appended to ``--out`` (JSON lines) as they come; a rerun skips the cases already
+there, so a long run can be stopped and resumed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+#: Drive name -> (armature converter, field converter).
+DRIVES: dict[str, tuple[str, str]] = {
+    "thyristor": ("thyristor-6p", "bridge-1p"),
+    "chopper": ("chopper", "chopper"),
+}
+#: Parameter -> (circuit, key in CircuitEstimate.to_dict(), motor field).
+PARAMETERS: dict[str, tuple[str, str, str]] = {
+    "Rf": ("field", "R", "field_resistance_ohm"),
+    "Lf": ("field", "L", "field_inductance_h"),
+    "Ra": ("armature", "R", "armature_resistance_ohm"),
+    "La": ("armature", "L", "armature_inductance_h"),
+    "K": ("armature", "K", "emf_constant_h"),
+}
+
+
+def drive_spec(name: str) -> Any:
+    """The :class:`~observer.simulation.converter.DriveSpec` of drive ``name``: its converters
+    behind the ``realistic`` preset's measurement chain."""
+    from observer.simulation.converter import PRESETS, ConverterSpec
+
+    realistic = PRESETS["realistic"]
+    assert realistic is not None
+    armature, field = DRIVES[name]
+    return realistic.replace(converter=ConverterSpec(armature=armature, field=field))
+
+
+def run_case(job: dict[str, Any]) -> dict[str, Any]:
+    """Simulate and estimate one case; the result row (errors, stds, timings)."""
+    from observer.estimation import estimate_recording
+    from observer.estimation.motor import MOTORS
+    from observer.simulation.simulate import simulate
+
+    motor = MOTORS[job["motor"]]
+    drive = drive_spec(job["drive"])
+    t0 = time.perf_counter()
+    rec = simulate(
+        motor, duration_s=job["duration"], sample_rate_hz=job["rate"], noise=job["noise"],
+        seed=job["seed"], drive=drive, drive_name=job["drive"],
+    )  # fmt: skip
+    t1 = time.perf_counter()
+    results = estimate_recording(rec, chain=drive.chain.to_config())
+    t2 = time.perf_counter()
+    out = dict(job)
+    out["simulate_s"], out["estimate_s"] = t1 - t0, t2 - t1
+    est = {circuit: r.to_dict() for circuit, r in results.items()}
+    for name, (circuit, key, field) in PARAMETERS.items():
+        true = float(getattr(motor, field))
+        value = float(est[circuit][key])
+        std = float(est[circuit]["std"].get(key, math.nan))
+        out[name] = {
+            "true": true, "estimate": value, "std": std,
+            "error_pct": 100.0 * (value - true) / true,
+            "z": (value - true) / std if std > 0 else math.inf,
+        }  # fmt: skip
+    for circuit in ("field", "armature"):
+        out[f"{circuit}_describes"] = bool(est[circuit]["describes_window"])
+        out[f"{circuit}_intersample"] = est[circuit]["intersample"]
+    return out
+
+
+def jobs(args: argparse.Namespace) -> list[dict[str, Any]]:
+    return [
+        {
+            "motor": args.motor,
+            "rate": rate,
+            "drive": drive,
+            "seed": seed,
+            "duration": args.duration,
+            "noise": args.noise,
+        }  # fmt: skip
+        for rate in args.rates
+        for drive in args.drives
+        for seed in range(args.seeds)
+    ]
+
+
+def _key(job: dict[str, Any]) -> tuple[Any, ...]:
+    return (job["motor"], job["rate"], job["drive"], job["seed"], job["duration"], job["noise"])
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    """Markdown: per rate, drive and parameter, median and max |error| % and median |z|."""
+    lines = [
+        "| rate | drive | param | seeds | median abs error | max abs error "
+        "| median abs(error/std) | not described |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    cases = sorted({(r["rate"], r["drive"]) for r in rows}, key=lambda c: (c[0], c[1]))
+    for rate, drive in cases:
+        cell = [r for r in rows if (r["rate"], r["drive"]) == (rate, drive)]
+        for name in PARAMETERS:
+            errors = [abs(r[name]["error_pct"]) for r in cell]
+            z = [abs(r[name]["z"]) for r in cell]
+            circuit = PARAMETERS[name][0]
+            held = sum(not r[f"{circuit}_describes"] for r in cell)
+            lines.append(
+                f"| {rate / 1000:g} kHz | {drive} | {name} | {len(cell)} | "
+                f"{statistics.median(errors):.2f} % | {max(errors):.2f} % | "
+                f"{statistics.median(z):.2f} | {held} |"
+            )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from observer.estimation.motor import MOTORS
+
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0] if __doc__ else None,
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--seeds", type=int, default=20, help="recordings per rate and drive")
+    parser.add_argument(
+        "--rates", type=lambda s: [float(x) for x in s.split(",")], default="2000,5000,10000",
+        metavar="HZ,...", help="sample rates (Hz)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--drives", type=lambda s: s.split(","), default=",".join(DRIVES), metavar="NAME,...",
+        help=f"drives: {', '.join(DRIVES)}",
+    )  # fmt: skip
+    parser.add_argument("--motor", choices=sorted(MOTORS), default="p12", help="motor")
+    parser.add_argument("--duration", type=float, default=30.0, metavar="S", help="length (s)")
+    parser.add_argument("--noise", type=float, default=0.002, metavar="FRACTION",
+                        help="sensor noise, fraction of each channel's rated value")  # fmt: skip
+    parser.add_argument("--workers", type=int, default=1, help="processes")
+    parser.add_argument(
+        "--out", type=Path, default=None, metavar="FILE.jsonl",
+        help="append each case's result here; a rerun skips what is there",
+    )  # fmt: skip
+    parser.add_argument("--table", type=Path, default=None, metavar="FILE.md",
+                        help="also write the table here")  # fmt: skip
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    unknown = [d for d in args.drives if d not in DRIVES]
+    if unknown or args.seeds < 1 or args.workers < 1 or not all(r > 0 for r in args.rates):
+        parser.error(f"--drives from {', '.join(DRIVES)}; --seeds, --workers, --rates > 0")
+
+    from tqdm import tqdm
+
+    from bench.common import machine_description
+
+    todo = jobs(args)
+    rows: list[dict[str, Any]] = []
+    if args.out is not None and args.out.exists():
+        wanted = {_key(j) for j in todo}
+        for line in args.out.read_text().splitlines():
+            row = json.loads(line)
+            if _key(row) in wanted:
+                rows.append(row)
+        done = {_key(r) for r in rows}
+        todo = [j for j in todo if _key(j) not in done]
+    machine = machine_description()  # its load average is the start's
+    started = time.perf_counter()
+    with tqdm(total=len(todo), desc="cases", disable=args.no_progress, file=sys.stderr) as bar:
+        pool = multiprocessing.Pool(args.workers) if args.workers > 1 else None
+        try:
+            results = pool.imap_unordered(run_case, todo) if pool else map(run_case, todo)
+            for row in results:
+                rows.append(row)
+                if args.out is not None:
+                    with args.out.open("a") as fh:
+                        fh.write(json.dumps(row) + "\n")
+                bar.update()
+        finally:
+            if pool is not None:
+                pool.terminate()
+                pool.join()
+    text = (
+        f"{args.motor}, {args.duration:g} s per recording, noise {args.noise:g} of rated, "
+        "butter2@fs/4 and 12-bit ADC on every channel, the estimator given that chain; "
+        f"{time.perf_counter() - started:.0f} s for {len(todo)} new cases on "
+        f"{machine}\n\n{table(rows)}"
+    )
+    print(text)
+    if args.table is not None:
+        args.table.write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

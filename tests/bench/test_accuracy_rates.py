@@ -1,0 +1,48 @@
+"""bench/accuracy_rates.py without its minutes: the drives it simulates and its table."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench.accuracy_rates import PARAMETERS, drive_spec, jobs, main, table
+
+
+def _row(rate: float, drive: str, seed: int, error: float, describes: bool) -> dict:
+    row = {"rate": rate, "drive": drive, "seed": seed, "field_describes": describes,
+           "armature_describes": True}  # fmt: skip
+    for name in PARAMETERS:
+        row[name] = {"error_pct": error * (1 if seed else -1), "z": 2.0 * error}
+    return row
+
+
+def test_the_drives_are_the_realistic_chain_behind_each_converter():
+    thyristor, chopper = drive_spec("thyristor"), drive_spec("chopper")
+    converters = (thyristor.converter.armature, thyristor.converter.field)
+    assert converters == ("thyristor-6p", "bridge-1p")
+    assert (chopper.converter.armature, chopper.converter.field) == ("chopper", "chopper")
+    for _, ch in chopper.chain.items():
+        assert (ch.filter_text(), ch.bits) == ("butter2@fs/4", 12)
+    config = chopper.chain.to_config()
+    assert config.ia.filter == "butter2@fs/4" and not config.va.averaging
+
+
+def test_the_table_has_a_row_per_rate_drive_and_parameter():
+    rows = [_row(2000.0, "chopper", s, e, s != 1) for s, e in enumerate((1.0, 3.0, 2.0))]
+    rows.append(_row(5000.0, "thyristor", 0, 0.5, True))
+    lines = table(rows).splitlines()
+    assert len(lines) == 2 + 2 * len(PARAMETERS)
+    cells = [c.strip() for c in lines[2].strip("|").split("|")]
+    assert cells == ["2 kHz", "chopper", "Rf", "3", "2.00 %", "3.00 %", "4.00", "1"]
+    assert lines[-1].startswith("| 5 kHz | thyristor | K | 1 | 0.50 %")
+
+
+def test_jobs_and_bad_arguments(capsys):
+    import argparse
+
+    args = argparse.Namespace(motor="p12", rates=[2e3, 5e3], drives=["chopper"], seeds=3,
+                              duration=30.0, noise=0.002)  # fmt: skip
+    assert len(jobs(args)) == 6
+    with pytest.raises(SystemExit) as exc:
+        main(["--drives", "magic", "--no-progress"])
+    assert exc.value.code == 2
+    assert "--drives" in capsys.readouterr().err
