@@ -73,6 +73,10 @@ from observer.diagnosis.results import (
     NoiseFloor,
 )
 from observer.estimation import CircuitEstimate, estimate_armature, estimate_field
+from observer.estimation.armature import armature_problem
+from observer.estimation.intersample import InputModel
+from observer.estimation.problem import make_problem
+from observer.estimation.ranges import kernel_array
 
 log = logging.getLogger(__name__)
 
@@ -143,12 +147,35 @@ def fit_baseline(rec: Any, *, n_particles: int, iterations: int, seed: int) -> B
     ctx = context_from(
         rec, field_est.resistance_ohm, field_est.inductance_h, arm_est.resistance_ohm
     )
-    data = FitData(rec, base_full, ctx)
+    data = FitData(rec, base_full, ctx, chain_inputs(rec, field_est, arm_est))
     rf0, ra0, k0 = data.residuals(base_full, *data.whole_record)
-    rms = {c: float(np.sqrt(np.mean(r**2))) for c, r in (("field", rf0), ("armature", ra0))}
+    rms = {c: float(np.sqrt(np.nanmean(r**2))) for c, r in (("field", rf0), ("armature", ra0))}
     return Baseline(
         field_est, arm_est, base_full, ctx, data, {"field": rf0, "armature": ra0}, k0, rms
     )
+
+
+def chain_inputs(
+    rec: Any, field_est: CircuitEstimate, arm_est: CircuitEstimate
+) -> dict[str, InputModel]:
+    """Each winding voltage's intersample model, as the baseline's estimator chose and fitted it.
+
+    The model (``hold``, ``smooth``, ``switched``, ``averaged``) and the
+    relative delay of the voltage channel the estimator found are kept fixed:
+    every extension is fitted on the same reconstruction of the voltage
+    between samples as the plain model, so an effect is not credited with
+    what the measurement chain does.
+    """
+    i_f, omega = kernel_array(rec["if"]), kernel_array(rec["omega"])
+    field = make_problem(
+        kernel_array(rec["vf"]), i_f, rec.dt, field_est.intersample, fit_shift=False,
+        shift=field_est.shift_samples,
+    )  # fmt: skip
+    armature = armature_problem(
+        rec["va"], rec["ia"], i_f, omega, rec.dt, intersample=arm_est.intersample,
+        fit_shift=False, shift=arm_est.shift_samples,
+    )  # fmt: skip
+    return {"field": field.inp, "armature": armature.inp}
 
 
 # ------------------------------------------------------------------ 2. noise floor
@@ -523,11 +550,11 @@ def _finding(
     values = {p.name: float(f.full[dk.FULL_PARAMS.index(p.name)]) for p in model.params}
     ch_circ = _main_circuit(model.circuits, baseline.rms, rf, ra)
     before = baseline.rms[ch_circ]
-    after = float(np.sqrt(np.mean((rf if ch_circ == "field" else ra) ** 2)))
+    after = float(np.sqrt(np.nanmean((rf if ch_circ == "field" else ra) ** 2)))
     ev = dict(evid[key])
     ev["rms_after"] = {
-        "field": float(np.sqrt(np.mean(rf**2))),
-        "armature": float(np.sqrt(np.mean(ra**2))),
+        "field": float(np.sqrt(np.nanmean(rf**2))),
+        "armature": float(np.sqrt(np.nanmean(ra**2))),
     }
     ev["structure_after"] = {
         f"{s.channel}:{s.condition}": binned_structure(
@@ -679,8 +706,8 @@ def _main_circuit(
 ) -> str:
     if len(circuits) == 1:
         return circuits[0]
-    gain_f = 1 - float(np.sqrt(np.mean(rf**2))) / before["field"]
-    gain_a = 1 - float(np.sqrt(np.mean(ra**2))) / before["armature"]
+    gain_f = 1 - float(np.sqrt(np.nanmean(rf**2))) / before["field"]
+    gain_a = 1 - float(np.sqrt(np.nanmean(ra**2))) / before["armature"]
     return "field" if gain_f > gain_a else "armature"
 
 

@@ -19,14 +19,79 @@ import numpy as np
 from observer.diagnosis import kernels as dk
 from observer.diagnosis.effects import DataContext, Effect, Parameter
 from observer.estimation import CircuitEstimate, EstimationError
+from observer.estimation.intersample import MIN_SEGMENT, InputModel, Segments, hold_moments
 from observer.estimation.polish import levenberg_marquardt
 from observer.estimation.pso import ParticleSwarm
 
 
-class FitData:
-    """The recording's arrays, the fixed inputs of the kernels, and residual helpers."""
+def interval_moments(v: np.ndarray, inp: InputModel | None) -> np.ndarray:
+    """The kernels' voltage moments per interval: ``inp``'s, and its gaps filled.
 
-    def __init__(self, rec: Any, base_full: np.ndarray, ctx: DataContext) -> None:
+    Intervals outside ``inp``'s segments (a converter's jump, a clipped
+    sample) are not simulated over by the fits, only crossed by the eddy
+    path's warm-up: they get the interval's mean of its two samples, held.
+    Without ``inp`` the voltage is held (the zero-order hold).
+    """
+    if inp is None or inp.model == "hold":
+        return np.ascontiguousarray(hold_moments(v))
+    mu = np.array(inp.mu, dtype=np.float64)
+    known = np.zeros(mu.shape[0], dtype=bool)
+    for s, e in zip(inp.segments.starts, inp.segments.ends, strict=True):
+        known[s:e] = True
+    gap = ~known
+    mu[gap, 0] = 0.5 * (v[:-1][gap] + v[1:][gap])
+    mu[gap, 1:] = 0.0
+    return np.ascontiguousarray(mu)
+
+
+def split_by(
+    starts: np.ndarray, stops: np.ndarray, known: Segments | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The parts of segments ``[starts, stops)`` inside ``known``'s (inclusive) segments.
+
+    The fits restart the simulation, with its own initial current, after every
+    interval the intersample model does not know (see
+    :mod:`observer.estimation.intersample`); parts shorter than
+    :data:`~observer.estimation.intersample.MIN_SEGMENT` samples are dropped.
+    """
+    if known is None:
+        return starts, stops
+    ks, ke = known.starts, known.ends + 1
+    out_s: list[np.ndarray] = []
+    out_e: list[np.ndarray] = []
+    for a, b in zip(starts, stops, strict=True):
+        lo = int(np.searchsorted(ke, a, side="right"))
+        hi = int(np.searchsorted(ks, b, side="left"))
+        s_ = np.maximum(ks[lo:hi], a)
+        e_ = np.minimum(ke[lo:hi], b)
+        keep = e_ - s_ >= MIN_SEGMENT
+        out_s.append(s_[keep])
+        out_e.append(e_[keep])
+    if not out_s:
+        return starts[:0], stops[:0]
+    return (
+        np.ascontiguousarray(np.concatenate(out_s), dtype=np.int64),
+        np.ascontiguousarray(np.concatenate(out_e), dtype=np.int64),
+    )
+
+
+class FitData:
+    """The recording's arrays, the fixed inputs of the kernels, and residual helpers.
+
+    ``inputs`` are the circuits' intersample models (``"field"``,
+    ``"armature"``), as the estimator chose them for the baseline: the
+    voltages enter the kernels as their moments, and the simulation restarts
+    after every interval a model does not know. Without them the voltages are
+    held over each period.
+    """
+
+    def __init__(
+        self,
+        rec: Any,
+        base_full: np.ndarray,
+        ctx: DataContext,
+        inputs: dict[str, InputModel] | None = None,
+    ) -> None:
         self.dt = rec.dt
         self.n = rec.n_samples
         self.va = np.ascontiguousarray(rec["va"], dtype=np.float64)
@@ -34,12 +99,36 @@ class FitData:
         self.vf = np.ascontiguousarray(rec["vf"], dtype=np.float64)
         self.i_f = np.ascontiguousarray(rec["if"], dtype=np.float64)
         self.omega = np.ascontiguousarray(rec["omega"], dtype=np.float64)
+        inputs = inputs or {}
+        self.inputs = inputs
+        self.mu_f = interval_moments(self.vf, inputs.get("field"))
+        self.mu_a = interval_moments(self.va, inputs.get("armature"))
+        self.emf_slope = "armature" in inputs and inputs["armature"].model != "hold"
+        self._known = {
+            c: (inp.segments if inp.segments.covered < self.n else None)
+            for c, inp in inputs.items()
+        }
+        self._split_cache: dict[tuple[str, bytes, bytes], tuple[np.ndarray, np.ndarray]] = {}
         self.loss = base_full[dk.I_RA] * self.ia**2 + base_full[dk.I_RF] * self.i_f**2
         self.brush_width_a = 0.01 * ctx.ia_peak_a
         self._theta = np.empty(self.n)
         #: Variance (V^2) of white noise on the armature's input voltage, whose
         #: expected share of the cost is subtracted (errors-in-variables).
         self.va_noise_var = 0.0
+
+    def split(
+        self, circuit: str, starts: np.ndarray, stops: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``circuit``'s simulated parts of the segments ``[starts, stops)`` (cached)."""
+        known = self._known.get(circuit)
+        if known is None:
+            return starts, stops
+        key = (circuit, starts.tobytes(), stops.tobytes())
+        parts = self._split_cache.get(key)
+        if parts is None:
+            parts = split_by(starts, stops, known)
+            self._split_cache[key] = parts
+        return parts
 
     @property
     def whole_record(self) -> tuple[np.ndarray, np.ndarray]:
@@ -51,6 +140,7 @@ class FitData:
     ) -> np.ndarray:
         """Expected armature SSE from unit input-voltage noise, per row of ``full`` (A^2/V^2)."""
         full = np.atleast_2d(full)
+        starts, stops = self.split("armature", starts, stops)
         a = np.exp(-full[:, dk.I_RA] * self.dt / full[:, dk.I_LA])
         b = (1.0 - a) / full[:, dk.I_RA]
         out = np.zeros(full.shape[0])
@@ -64,12 +154,12 @@ class FitData:
         """Field and armature residual (A) at every sample (NaN outside the segments) and K."""
         rf = np.full(self.n, np.nan)
         ra = np.full(self.n, np.nan)
-        dk.field_residual(
-            full, self.vf, self.i_f, self.loss, starts, stops, self.dt, self._theta, rf
-        )
+        fs, fe = self.split("field", starts, stops)
+        dk.field_residual(full, self.mu_f, self.i_f, self.loss, fs, fe, self.dt, self._theta, rf)
+        as_, ae = self.split("armature", starts, stops)
         _, k = dk.armature_residual(
-            full, self.va, self.ia, self.i_f, self.omega, self.loss, starts, stops, self.dt,
-            self.brush_width_a, k_fixed, self._theta, ra,
+            full, self.mu_a, self.ia, self.i_f, self.omega, self.loss, as_, ae, self.dt,
+            self.brush_width_a, k_fixed, self._theta, ra, self.emf_slope,
         )  # fmt: skip
         return rf, ra, float(k)
 
@@ -82,13 +172,15 @@ class FitData:
     ) -> np.ndarray:
         out = np.zeros(full.shape[0])
         if "field" in weights:
+            fs, fe = self.split("field", starts, stops)
             out += weights["field"] * dk.field_swarm_costs(
-                full, self.vf, self.i_f, self.loss, starts, stops, self.dt
+                full, self.mu_f, self.i_f, self.loss, fs, fe, self.dt
             )
         if "armature" in weights:
+            as_, ae = self.split("armature", starts, stops)
             sse = dk.armature_swarm_costs(
-                full, self.va, self.ia, self.i_f, self.omega, self.loss, starts, stops, self.dt,
-                self.brush_width_a,
+                full, self.mu_a, self.ia, self.i_f, self.omega, self.loss, as_, ae, self.dt,
+                self.brush_width_a, self.emf_slope,
             )  # fmt: skip
             if self.va_noise_var > 0:
                 sse -= self.va_noise_var * self.input_noise_energy(full, starts, stops)
@@ -215,10 +307,11 @@ def fit_candidate(
         full = model.to_full(theta)[0]
         rf, ra, _ = data.residuals(full, starts, stops)
         parts = []
+        # Samples the intersample model restarts at are NaN: no residual there.
         if "field" in scale:
-            parts.append(scale["field"] * rf[mask])
+            parts.append(scale["field"] * np.nan_to_num(rf[mask]))
         if "armature" in scale:
-            parts.append(scale["armature"] * ra[mask])
+            parts.append(scale["armature"] * np.nan_to_num(ra[mask]))
         if compensate:
             e = data.va_noise_var * float(data.input_noise_energy(full, starts, stops)[0])
             parts.append(np.array([scale["armature"] * math.sqrt(max(c_comp - e, 0.0))]))
@@ -238,7 +331,8 @@ def fit_candidate(
 
 
 def segment_sse(r: np.ndarray, starts: np.ndarray, stops: np.ndarray) -> np.ndarray:
-    return np.array([float(np.sum(r[a:b] ** 2)) for a, b in zip(starts, stops, strict=True)])
+    """Per segment, the sum of squared residuals over its simulated samples."""
+    return np.array([float(np.nansum(r[a:b] ** 2)) for a, b in zip(starts, stops, strict=True)])
 
 
 def split_segments(n: int, dt: float, max_fit_samples: int) -> tuple[np.ndarray, ...]:

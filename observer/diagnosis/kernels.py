@@ -9,7 +9,7 @@ and return the residual. Linear parameters are projected out as in
 :mod:`observer.estimation.kernels`: the armature's ``K`` (shared by all segments) and its
 initial current (one per segment).
 
-Model (per sample period ``dt``, voltages held)::
+Model (per sample period ``dt``)::
 
     theta:  theta[k+1] = theta[k] + (1 - exp(-dt/tau_th)) * (k_th*P[k] - theta[k])
     field:  Lf/(1+c|if|)^2 * dif/dt = vf - Rf*(1+theta)*if  (+ eddy path: k2, tau_e)
@@ -17,10 +17,17 @@ Model (per sample period ``dt``, voltages held)::
                         - K*g(if)*(1 - beta*|ia|)*omega,   g(if) = if/(1+c|if|)
     sensors: measured current = model current read ``skew`` s late + offset
 
+The winding voltages enter as their Legendre moments over every sample
+interval (``mu``, ``(n - 1, 3)``), the estimator's intersample model
+(:mod:`observer.estimation.intersample`: ``hold`` is ``(v[k], 0, 0)``, which
+makes these the zero-order-hold kernels; ``smooth``, ``switched`` and
+``averaged`` describe a voltage that varies between samples, as a
+converter's does). The exact update of a first-order winding over a period is
+then :func:`~observer.estimation.intersample_kernels.moment_coefficients`'.
 The field is advanced with its local linearisation held over the period
 (exact for the plain model, second order in ``dt/tau`` otherwise); the eddy
 path makes the field a two-state linear system, advanced by its exact 2x2
-matrix exponential.
+matrix exponential with the interval's mean voltage.
 """
 
 from __future__ import annotations
@@ -29,6 +36,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from observer.estimation.intersample_kernels import moment_coefficients
 
 #: Names of the entries of the full parameter vector, with units.
 FULL_PARAMS = (
@@ -113,7 +122,7 @@ def _advanced(x: np.ndarray, k: int, m: int, f: float) -> float:
 @njit(nogil=True, cache=True)
 def field_residual(
     p: np.ndarray,
-    vf: np.ndarray,
+    mu: np.ndarray,
     if_m: np.ndarray,
     loss: np.ndarray,
     starts: np.ndarray,
@@ -124,7 +133,7 @@ def field_residual(
 ) -> float:
     """Field-current residual ``if_measured - if_model`` over the segments; returns its SSE.
 
-    ``out`` (n,) receives the residual at the segments' samples (others untouched);
+    ``mu`` (n - 1, 3) are the field voltage's moments per interval; ``out`` (n,) receives the residual at the segments' samples (others untouched);
     ``theta`` (n,) is work space.
     """
     rf0, lf, c = p[I_RF], p[I_LF], p[I_SAT]
@@ -134,12 +143,12 @@ def field_residual(
     varying = thermal or c != 0.0
     m_skew = int(math.floor(skew / dt))
     f_skew = skew / dt - m_skew
-    a = math.exp(-rf0 * dt / lf)
-    bq = (1.0 - a) / rf0
+    a, c0, c1, c2 = moment_coefficients(rf0, lf, dt)
+    n_int = mu.shape[0]
     p00 = p01 = p10 = p11 = g0 = g1 = 0.0
     if k2 > 0.0:
         p00, p01, p10, p11, g0, g1 = _eddy_step(rf0, lf, k2, te, dt)
-    sens = np.empty(vf.shape[0])
+    sens = np.empty(if_m.shape[0])
     sse = 0.0
     for s in range(starts.shape[0]):
         k0, k1 = starts[s], stops[s]
@@ -175,7 +184,9 @@ def field_residual(
                 s_rr += r * r
                 s_rs += r * si
                 s_ss += si * si
-            v = vf[k]
+            if k >= n_int:
+                continue
+            v = mu[k, 0]
             rf = rf0 * (1.0 + theta[k]) if thermal else rf0
             if k2 > 0.0:
                 if varying:
@@ -190,9 +201,8 @@ def field_residual(
             else:
                 if varying:
                     sat = 1.0 + c * abs(i)
-                    a = math.exp(-rf * dt * sat * sat / lf)
-                    bq = (1.0 - a) / rf
-                i = a * i + bq * v
+                    a, c0, c1, c2 = moment_coefficients(rf, lf / (sat * sat), dt)
+                i = a * i + c0 * v + c1 * mu[k, 1] + c2 * mu[k, 2]
                 si = a * si
                 if si < 1e-150:
                     si = 0.0
@@ -208,7 +218,7 @@ def field_residual(
 @njit(nogil=True, cache=True)
 def armature_residual(
     p: np.ndarray,
-    va: np.ndarray,
+    mu: np.ndarray,
     ia_m: np.ndarray,
     if_m: np.ndarray,
     omega: np.ndarray,
@@ -220,10 +230,14 @@ def armature_residual(
     emf_constant: float,
     theta: np.ndarray,
     out: np.ndarray,
+    emf_slope: bool = False,
 ) -> tuple[float, float]:
     """Armature-current residual over the segments, ``K`` and per-segment ``i0`` projected.
 
-    ``emf_constant`` NaN fits ``K``; a number holds it. Returns ``(sse, K)``;
+    ``mu`` (n - 1, 3) are the armature voltage's moments per interval;
+    ``emf_constant`` NaN fits ``K``; a number holds it. ``emf_slope``: the EMF
+    is linear between samples (its slope enters through the first moment);
+    else only its mean over the interval does (the trapezoid, held). Returns ``(sse, K)``;
     ``out`` receives the residual at the segments' samples.
     """
     ra0, la, c = p[I_RA], p[I_LA], p[I_SAT]
@@ -233,8 +247,8 @@ def armature_residual(
     fit_k = math.isnan(emf_constant)
     m_skew = int(math.floor(skew / dt))
     f_skew = skew / dt - m_skew
-    a = math.exp(-ra0 * dt / la)
-    bq = (1.0 - a) / ra0
+    a, c0, c1, c2 = moment_coefficients(ra0, la, dt)
+    n_int = mu.shape[0]
     n_seg = starts.shape[0]
     # Per segment: sums for the Schur complement of the initial currents.
     s_de = 0.0
@@ -270,11 +284,11 @@ def armature_residual(
             # The measured currents lag by the skew: as model inputs, read them ahead.
             ia_true = _advanced(ia_m, k, m_skew, f_skew) - off_a
             if thermal:
-                rr = ra0 * (1.0 + theta[k])
-                a = math.exp(-rr * dt / la)
-                bq = (1.0 - a) / rr
-            # Inputs held over [k, k+1]: voltage less brush drop, trapezoidal EMF.
-            u = va[k]
+                a, c0, c1, c2 = moment_coefficients(ra0 * (1.0 + theta[k]), la, dt)
+            # Inputs over [k, k+1]: the voltage's moments less the brush drop (held),
+            # the EMF linear between samples (its mean and slope moments).
+            kv = k if k < n_int else n_int - 1
+            u = mu[kv, 0]
             if vb != 0.0:
                 u -= vb * math.tanh(ia_true / brush_width_a)
             if k == k0:
@@ -286,6 +300,7 @@ def armature_residual(
             ia_n = _advanced(ia_m, kn, m_skew, f_skew) - off_a
             q_next = i_fn / (1.0 + c * abs(i_fn)) * (1.0 - beta * abs(ia_n)) * omega[kn]
             e = 0.5 * (q_prev + q_next)
+            e1 = (q_next - q_prev) / 6.0 if emf_slope else 0.0
             q_prev = q_next
             if not fit_k:
                 d += emf_constant * se
@@ -297,8 +312,8 @@ def armature_residual(
             seg_dg[s] += d * sg
             seg_eg[s] += se * sg
             seg_gg[s] += sg * sg
-            fv = a * fv + bq * u
-            fe = a * fe + bq * e
+            fv = a * fv + c0 * u + c1 * mu[kv, 1] + c2 * mu[kv, 2]
+            fe = a * fe + c0 * e + c1 * e1
             gg = a * g
             g = gg if abs(gg) > 1e-150 else 0.0
     return _project_emf_and_initial_currents(
@@ -358,7 +373,7 @@ def _project_emf_and_initial_currents(
 @njit(nogil=True, cache=True)
 def field_swarm_costs(
     positions: np.ndarray,
-    vf: np.ndarray,
+    mu: np.ndarray,
     if_m: np.ndarray,
     loss: np.ndarray,
     starts: np.ndarray,
@@ -367,19 +382,19 @@ def field_swarm_costs(
 ) -> np.ndarray:
     """SSE of :func:`field_residual` for every row of ``positions`` (n_particles, N_FULL)."""
     n_p = positions.shape[0]
-    n = vf.shape[0]
+    n = if_m.shape[0]
     out = np.empty(n_p)
     theta = np.empty(n)
     res = np.empty(n)
     for p in range(n_p):
-        out[p] = field_residual(positions[p], vf, if_m, loss, starts, stops, dt, theta, res)
+        out[p] = field_residual(positions[p], mu, if_m, loss, starts, stops, dt, theta, res)
     return out
 
 
 @njit(nogil=True, cache=True)
 def armature_swarm_costs(
     positions: np.ndarray,
-    va: np.ndarray,
+    mu: np.ndarray,
     ia_m: np.ndarray,
     if_m: np.ndarray,
     omega: np.ndarray,
@@ -388,17 +403,18 @@ def armature_swarm_costs(
     stops: np.ndarray,
     dt: float,
     brush_width_a: float,
+    emf_slope: bool = False,
 ) -> np.ndarray:
     """SSE of :func:`armature_residual` (``K`` fitted) for every row of ``positions``."""
     n_p = positions.shape[0]
-    n = va.shape[0]
+    n = ia_m.shape[0]
     out = np.empty(n_p)
     theta = np.empty(n)
     res = np.empty(n)
     for p in range(n_p):
         sse, _ = armature_residual(
-            positions[p], va, ia_m, if_m, omega, loss, starts, stops, dt, brush_width_a,
-            math.nan, theta, res,
+            positions[p], mu, ia_m, if_m, omega, loss, starts, stops, dt, brush_width_a,
+            math.nan, theta, res, emf_slope,
         )  # fmt: skip
         out[p] = sse
     return out
