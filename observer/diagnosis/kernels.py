@@ -133,7 +133,8 @@ def field_residual(
 ) -> float:
     """Field-current residual ``if_measured - if_model`` over the segments; returns its SSE.
 
-    ``mu`` (n - 1, 3) are the field voltage's moments per interval; ``out`` (n,) receives the residual at the segments' samples (others untouched);
+    ``mu`` (n - 1, 3) are the field voltage's moments per interval; ``out`` (n,)
+    receives the residual at the segments' samples (others untouched);
     ``theta`` (n,) is work space.
     """
     rf0, lf, c = p[I_RF], p[I_LF], p[I_SAT]
