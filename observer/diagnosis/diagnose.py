@@ -66,6 +66,7 @@ from observer.diagnosis.results import (
     CURRENT_CHANNEL,
     NONE,
     UNEXPLAINED,
+    ChainFinding,
     ConditionStructure,
     Diagnosis,
     Finding,
@@ -74,7 +75,7 @@ from observer.diagnosis.results import (
 )
 from observer.estimation import CircuitEstimate, estimate_armature, estimate_field
 from observer.estimation.armature import armature_problem
-from observer.estimation.intersample import InputModel
+from observer.estimation.intersample import MIN_SWITCHED_SHARE, InputModel, find_switching
 from observer.estimation.problem import make_problem
 from observer.estimation.ranges import kernel_array
 
@@ -92,6 +93,10 @@ UNEXPLAINED_Z = 10.0
 #: ... and at least this large against the floor's rms: in a long recording a tiny,
 #: harmless systematic error becomes significant; it must also matter.
 UNEXPLAINED_SIZE = 0.05
+
+#: A relative delay of the voltage channel beyond this (sample periods) is taken for
+#: the winding's physics, not the chain's (see :func:`fit_baseline`).
+CHAIN_SHIFT = 0.25
 
 Segments = tuple[np.ndarray, np.ndarray]
 """``(starts, stops)`` sample indices of a set of segments."""
@@ -143,6 +148,21 @@ def fit_baseline(rec: Any, *, n_particles: int, iterations: int, seed: int) -> B
         rec["va"], rec["ia"], rec["if"], rec["omega"], dt, n_particles=n_particles,
         max_iterations=iterations, rng=rng, compensate_input_noise=False,
     )  # fmt: skip
+    # A relative delay of a large part of a period is not what a chain of equal
+    # filters does: it stands in for a lag of the winding's physics (an eddy path,
+    # a late current sensor), which the effects must get to explain. A smooth
+    # voltage chosen with it was chosen for that lag: the voltage is held.
+    if abs(field_est.shift_samples) > CHAIN_SHIFT:
+        field_est = estimate_field(
+            rec["vf"], rec["if"], dt, n_particles=n_particles, max_iterations=iterations,
+            rng=rng, intersample=_unpinned(field_est.intersample), fit_shift=False,
+        )  # fmt: skip
+    if abs(arm_est.shift_samples) > CHAIN_SHIFT:
+        arm_est = estimate_armature(
+            rec["va"], rec["ia"], rec["if"], rec["omega"], dt, n_particles=n_particles,
+            max_iterations=iterations, rng=rng, compensate_input_noise=False,
+            intersample=_unpinned(arm_est.intersample), fit_shift=False,
+        )  # fmt: skip
     base_full = baseline_full_vector(field_est, arm_est)
     ctx = context_from(
         rec, field_est.resistance_ohm, field_est.inductance_h, arm_est.resistance_ohm
@@ -153,6 +173,11 @@ def fit_baseline(rec: Any, *, n_particles: int, iterations: int, seed: int) -> B
     return Baseline(
         field_est, arm_est, base_full, ctx, data, {"field": rf0, "armature": ra0}, k0, rms
     )
+
+
+def _unpinned(model: str) -> str:
+    """The intersample model to refit with when ``model`` came with a physical lag."""
+    return "hold" if model == "smooth" else model
 
 
 def chain_inputs(
@@ -458,6 +483,7 @@ class Verdict:
     description: str
     findings: tuple[Finding, ...]
     structure: tuple[ConditionStructure, ...]
+    chain: tuple[ChainFinding, ...] = ()
 
 
 def decide_verdict(
@@ -502,9 +528,16 @@ def decide_verdict(
     ]
     structure = tuple(sorted(located.structure + tuple(periodic), key=lambda s_: -s_.z))
     words = [s_.description for s_ in periodic]
-    strong = [s_ for s_ in structure if s_.z >= UNEXPLAINED_Z and s_.size >= UNEXPLAINED_SIZE]
+    strong = _strong(structure)
+    mismatch = located.mismatch
+    chain: tuple[ChainFinding, ...] = ()
+    if verdict == NONE and not words and (strong or mismatch):
+        chain = chain_explains(rec, baseline, floors, located, strong)
+        if chain:
+            strong, mismatch = [], ()
+            description += "; " + "; ".join(f"{c.description} ({c.advice})" for c in chain)
     if verdict == NONE and (
-        strong or located.mismatch or words or any(f.excess_ratio > 1.5 for f in floors.values())
+        strong or mismatch or words or any(f.excess_ratio > 1.5 for f in floors.values())
     ):
         verdict = UNEXPLAINED
         if not words:
@@ -512,7 +545,80 @@ def decide_verdict(
                 f"residual {max(f.excess_ratio for f in floors.values()):.1f}x the noise floor"
             ]
         description = "a mismatch is located but no candidate removes it: " + "; ".join(words)
-    return Verdict(verdict, description, findings, structure)
+    return Verdict(verdict, description, findings, structure, chain)
+
+
+def _strong(structure: Sequence[ConditionStructure]) -> list[ConditionStructure]:
+    return [s_ for s_ in structure if s_.z >= UNEXPLAINED_Z and s_.size >= UNEXPLAINED_SIZE]
+
+
+#: Advice of a chain finding of kind ``jumps_between_samples``.
+JUMPS_ADVICE = (
+    "sample faster, or filter the voltage channels well below the Nyquist frequency, or measure "
+    "the voltage averaged over each period, and configure the converter and chain in [chain]"
+)
+
+
+def chain_explains(
+    rec: Any,
+    baseline: Baseline,
+    floors: dict[str, NoiseFloor],
+    located: Located,
+    strong: Sequence[ConditionStructure],
+) -> tuple[ChainFinding, ...]:
+    """Chain findings, if leaving out the intervals across the voltage jumps removes the structure.
+
+    A converter's voltage jumps between samples; filtered, the jumps pass
+    the estimator's jump test and the voltage is reconstructed as smooth
+    (``smooth``), but across them the reconstruction errs by an amount that
+    follows the firing angle and the conduction, i.e. speed and load: located
+    structure the motor does not cause. If the residual at the baseline's
+    parameters, simulated only between the transitions (``switched``), shows
+    no structure or window against the same floors, the structure is the
+    chain's. Physics (a brush drop, a thermal rise, a ripple in shaft angle)
+    stays in the residual between the jumps as well.
+    """
+    inputs = dict(baseline.data.inputs)
+    changed: list[tuple[str, float]] = []
+    for circuit, channel in (("armature", "va"), ("field", "vf")):
+        inp = inputs.get(circuit)
+        if inp is None or inp.model != "smooth":
+            continue
+        sw = find_switching(kernel_array(rec[channel]))
+        if sw.transition_share < MIN_SWITCHED_SHARE:
+            continue
+        if circuit == "armature":
+            problem = armature_problem(
+                rec["va"], rec["ia"], rec["if"], rec["omega"], rec.dt, intersample="switched",
+                fit_shift=False, shift=inp.shift,
+            )  # fmt: skip
+        else:
+            problem = make_problem(
+                kernel_array(rec["vf"]), kernel_array(rec["if"]), rec.dt, "switched",
+                switching=sw, fit_shift=False, shift=inp.shift,
+            )  # fmt: skip
+        inputs[circuit] = problem.inp
+        changed.append((channel, sw.transition_share))
+    if not changed:
+        return ()
+    alt = FitData(rec, baseline.full, baseline.context, inputs)
+    rf, ra, _ = alt.residuals(baseline.full, *alt.whole_record)
+    mismatch, structure = locate(rec, {"field": rf, "armature": ra}, floors, located.conditions)
+    if mismatch or _strong(structure):
+        return ()
+    words = "; ".join(s_.description.split(" (z =")[0] for s_ in strong[:2]) or "time windows"
+    return tuple(
+        ChainFinding(
+            channel,
+            "jumps_between_samples",
+            f"measurement chain: {channel} jumps between samples in {100 * share:.1f} % of the "
+            f"intervals (a converter seen through a filter that lets its edges through), and "
+            f"the structure located ({words}) is gone when those intervals are left out: "
+            "it is the reconstruction of the voltage across the jumps, not the motor",
+            JUMPS_ADVICE,
+        )
+        for channel, share in changed
+    )
 
 
 def _refit_on_all_segments(
@@ -677,6 +783,11 @@ def diagnose(
         residuals_after=after,
         conditions=located.conditions,
         plain_refit=plain_refit,
+        chain=outcome.chain,
+        intersample={
+            c: {"model": inp.model, "shift_samples": inp.shift}
+            for c, inp in baseline.data.inputs.items()
+        },
     )
 
 

@@ -103,7 +103,9 @@ class FitData:
         self.inputs = inputs
         self.mu_f = interval_moments(self.vf, inputs.get("field"))
         self.mu_a = interval_moments(self.va, inputs.get("armature"))
-        self.emf_slope = "armature" in inputs and inputs["armature"].model != "hold"
+        self.held_f = "field" not in inputs or inputs["field"].model == "hold"
+        self.held_a = "armature" not in inputs or inputs["armature"].model == "hold"
+        self.emf_slope = not self.held_a
         self._known = {
             c: (inp.segments if inp.segments.covered < self.n else None)
             for c, inp in inputs.items()
@@ -155,11 +157,13 @@ class FitData:
         rf = np.full(self.n, np.nan)
         ra = np.full(self.n, np.nan)
         fs, fe = self.split("field", starts, stops)
-        dk.field_residual(full, self.mu_f, self.i_f, self.loss, fs, fe, self.dt, self._theta, rf)
+        dk.field_residual(
+            full, self.mu_f, self.i_f, self.loss, fs, fe, self.dt, self._theta, rf, self.held_f
+        )
         as_, ae = self.split("armature", starts, stops)
         _, k = dk.armature_residual(
             full, self.mu_a, self.ia, self.i_f, self.omega, self.loss, as_, ae, self.dt,
-            self.brush_width_a, k_fixed, self._theta, ra, self.emf_slope,
+            self.brush_width_a, k_fixed, self._theta, ra, self.emf_slope, self.held_a,
         )  # fmt: skip
         return rf, ra, float(k)
 
@@ -174,13 +178,13 @@ class FitData:
         if "field" in weights:
             fs, fe = self.split("field", starts, stops)
             out += weights["field"] * dk.field_swarm_costs(
-                full, self.mu_f, self.i_f, self.loss, fs, fe, self.dt
+                full, self.mu_f, self.i_f, self.loss, fs, fe, self.dt, self.held_f
             )
         if "armature" in weights:
             as_, ae = self.split("armature", starts, stops)
             sse = dk.armature_swarm_costs(
                 full, self.mu_a, self.ia, self.i_f, self.omega, self.loss, as_, ae, self.dt,
-                self.brush_width_a, self.emf_slope,
+                self.brush_width_a, self.emf_slope, self.held_a,
             )  # fmt: skip
             if self.va_noise_var > 0:
                 sse -= self.va_noise_var * self.input_noise_energy(full, starts, stops)

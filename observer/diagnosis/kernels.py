@@ -64,6 +64,15 @@ N_FULL = len(FULL_PARAMS)
 
 
 @njit(nogil=True, cache=True)
+def _coefficients(r: float, ell: float, dt: float, held: bool) -> tuple[float, float, float, float]:
+    """``(a, c0, c1, c2)`` of a period; a held voltage's by the zero-order hold's formula."""
+    if held:
+        a = math.exp(-r * dt / ell)
+        return a, (1.0 - a) / r, 0.0, 0.0
+    return moment_coefficients(r, ell, dt)
+
+
+@njit(nogil=True, cache=True)
 def thermal_state(p: np.ndarray, loss: np.ndarray, dt: float, out: np.ndarray) -> None:
     """Relative resistance rise ``theta`` at every sample, from a cold start."""
     kth = p[I_KTH]
@@ -130,11 +139,14 @@ def field_residual(
     dt: float,
     theta: np.ndarray,
     out: np.ndarray,
+    held: bool = True,
 ) -> float:
     """Field-current residual ``if_measured - if_model`` over the segments; returns its SSE.
 
     ``mu`` (n - 1, 3) are the field voltage's moments per interval; ``out`` (n,)
-    receives the residual at the segments' samples (others untouched);
+    receives the residual at the segments' samples (others untouched); ``held``:
+    the voltage is held (``mu``'s higher moments are zero), advanced as before
+    intersample models, to the last bit;
     ``theta`` (n,) is work space.
     """
     rf0, lf, c = p[I_RF], p[I_LF], p[I_SAT]
@@ -144,7 +156,7 @@ def field_residual(
     varying = thermal or c != 0.0
     m_skew = int(math.floor(skew / dt))
     f_skew = skew / dt - m_skew
-    a, c0, c1, c2 = moment_coefficients(rf0, lf, dt)
+    a, c0, c1, c2 = _coefficients(rf0, lf, dt, held)
     n_int = mu.shape[0]
     p00 = p01 = p10 = p11 = g0 = g1 = 0.0
     if k2 > 0.0:
@@ -202,7 +214,11 @@ def field_residual(
             else:
                 if varying:
                     sat = 1.0 + c * abs(i)
-                    a, c0, c1, c2 = moment_coefficients(rf, lf / (sat * sat), dt)
+                    if held:
+                        a = math.exp(-rf * dt * sat * sat / lf)
+                        c0 = (1.0 - a) / rf
+                    else:
+                        a, c0, c1, c2 = moment_coefficients(rf, lf / (sat * sat), dt)
                 i = a * i + c0 * v + c1 * mu[k, 1] + c2 * mu[k, 2]
                 si = a * si
                 if si < 1e-150:
@@ -232,6 +248,7 @@ def armature_residual(
     theta: np.ndarray,
     out: np.ndarray,
     emf_slope: bool = False,
+    held: bool = True,
 ) -> tuple[float, float]:
     """Armature-current residual over the segments, ``K`` and per-segment ``i0`` projected.
 
@@ -248,7 +265,7 @@ def armature_residual(
     fit_k = math.isnan(emf_constant)
     m_skew = int(math.floor(skew / dt))
     f_skew = skew / dt - m_skew
-    a, c0, c1, c2 = moment_coefficients(ra0, la, dt)
+    a, c0, c1, c2 = _coefficients(ra0, la, dt, held)
     n_int = mu.shape[0]
     n_seg = starts.shape[0]
     # Per segment: sums for the Schur complement of the initial currents.
@@ -285,7 +302,7 @@ def armature_residual(
             # The measured currents lag by the skew: as model inputs, read them ahead.
             ia_true = _advanced(ia_m, k, m_skew, f_skew) - off_a
             if thermal:
-                a, c0, c1, c2 = moment_coefficients(ra0 * (1.0 + theta[k]), la, dt)
+                a, c0, c1, c2 = _coefficients(ra0 * (1.0 + theta[k]), la, dt, held)
             # Inputs over [k, k+1]: the voltage's moments less the brush drop (held),
             # the EMF linear between samples (its mean and slope moments).
             kv = k if k < n_int else n_int - 1
@@ -380,6 +397,7 @@ def field_swarm_costs(
     starts: np.ndarray,
     stops: np.ndarray,
     dt: float,
+    held: bool = True,
 ) -> np.ndarray:
     """SSE of :func:`field_residual` for every row of ``positions`` (n_particles, N_FULL)."""
     n_p = positions.shape[0]
@@ -388,7 +406,7 @@ def field_swarm_costs(
     theta = np.empty(n)
     res = np.empty(n)
     for p in range(n_p):
-        out[p] = field_residual(positions[p], mu, if_m, loss, starts, stops, dt, theta, res)
+        out[p] = field_residual(positions[p], mu, if_m, loss, starts, stops, dt, theta, res, held)
     return out
 
 
@@ -405,6 +423,7 @@ def armature_swarm_costs(
     dt: float,
     brush_width_a: float,
     emf_slope: bool = False,
+    held: bool = True,
 ) -> np.ndarray:
     """SSE of :func:`armature_residual` (``K`` fitted) for every row of ``positions``."""
     n_p = positions.shape[0]
@@ -415,7 +434,7 @@ def armature_swarm_costs(
     for p in range(n_p):
         sse, _ = armature_residual(
             positions[p], mu, ia_m, if_m, omega, loss, starts, stops, dt, brush_width_a,
-            math.nan, theta, res, emf_slope,
+            math.nan, theta, res, emf_slope, held,
         )  # fmt: skip
         out[p] = sse
     return out

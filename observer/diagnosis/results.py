@@ -110,6 +110,27 @@ class Finding:
 
 
 @dataclass(frozen=True)
+class ChainFinding:
+    """Structure in the residual that the measurement chain explains, not the motor.
+
+    Attributes
+    ----------
+    channel : str
+        The voltage channel (``va`` or ``vf``).
+    kind : str
+        ``jumps_between_samples``: the structure sits in the intervals across a
+        converter's jumps, which the samples do not describe.
+    description, advice : str
+        What was found, and what to do about it.
+    """
+
+    channel: str
+    kind: str
+    description: str
+    advice: str
+
+
+@dataclass(frozen=True)
 class Diagnosis:
     """The outcome of :func:`diagnose`."""
 
@@ -130,6 +151,10 @@ class Diagnosis:
     conditions: dict[str, tuple[np.ndarray, str]] = field(default_factory=dict, repr=False)
     #: The plain model refitted as the extensions are (same segments and compensation).
     plain_refit: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: What the measurement chain, not the motor, does to the residual.
+    chain: tuple[ChainFinding, ...] = ()
+    #: Each winding voltage's intersample model (``model``, ``shift`` in sample periods).
+    intersample: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @property
     def best(self) -> Finding | None:
@@ -175,4 +200,14 @@ class Diagnosis:
                 for s in self.structure
             ],
             "findings": [f.to_dict() for f in self.findings],
+            "intersample": self.intersample,
+            "chain": [
+                {
+                    "channel": c.channel,
+                    "kind": c.kind,
+                    "description": c.description,
+                    "advice": c.advice,
+                }
+                for c in self.chain
+            ],  # fmt: skip
         }
