@@ -178,7 +178,7 @@ def packed_fmas() -> dict[str, tuple[int, int]]:
         (ik._plain_hold, (w, y, mu, mu, False, 0.0, 0, n - 1), 4 * 5),
         (ik._plain_moments, (w, y, mu, mu, False, 0.0, 0, n - 1), 4 * 7),
         (ik._fit_hold, (w, y, mu, mu, 0, n - 1), 4 * 9),
-        (ik._fit_moments, (w, y, mu, mu, 0, n - 1), 2 * 13),
+        (ik._fit_moments, (w, y, mu, mu, 0, n - 1), 4 * 13),
     ]
     out = {}
     for fn, args, expected in loops:

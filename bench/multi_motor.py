@@ -122,7 +122,10 @@ def _child(argv: Sequence[str]) -> int:
     rate, decimate, warmup, duration = float(argv[0]), int(argv[1]), float(argv[2]), float(argv[3])
     paths = [Path(p) for p in argv[4:]]
     print(json.dumps(run_motors(paths, rate, decimate, warmup, duration)), flush=True)
-    return 0
+    # The figures are out; skip the interpreter's teardown, which can abort while the
+    # stopped daemons' native threads (Zenoh's) are still unwinding.
+    sys.stderr.flush()
+    os._exit(0)
 
 
 def run_layout(

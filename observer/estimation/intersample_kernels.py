@@ -484,15 +484,19 @@ def _fit_hold(
 def _fit_moments(
     w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
 ) -> int:
-    """:func:`_fit_hold` with three moments per interval, two samples per pass."""
+    """:func:`_fit_hold` with three moments per interval."""
     width = w.shape[1]
     k = st
-    while k + 2 <= en:
-        y0, y1 = y[k], y[k + 1]
+    while k + 4 <= en:
+        y0, y1, y2, y3 = y[k], y[k + 1], y[k + 2], y[k + 3]
         p0, q0, z0 = mu[k, 0], mu[k, 1], mu[k, 2]
         p1, q1, z1 = mu[k + 1, 0], mu[k + 1, 1], mu[k + 1, 2]
+        p2, q2, z2 = mu[k + 2, 0], mu[k + 2, 1], mu[k + 2, 2]
+        p3, q3, z3 = mu[k + 3, 0], mu[k + 3, 1], mu[k + 3, 2]
         pe0, qe0, ze0 = mu_emf[k, 0], mu_emf[k, 1], mu_emf[k, 2]
         pe1, qe1, ze1 = mu_emf[k + 1, 0], mu_emf[k + 1, 1], mu_emf[k + 1, 2]
+        pe2, qe2, ze2 = mu_emf[k + 2, 0], mu_emf[k + 2, 1], mu_emf[k + 2, 2]
+        pe3, qe3, ze3 = mu_emf[k + 3, 0], mu_emf[k + 3, 1], mu_emf[k + 3, 2]
         for j in range(width):
             h = w[_H, j]
             he = w[_HE, j]
@@ -502,25 +506,48 @@ def _fit_moments(
             ag = w[_AG, j]
             r1 = w[_R1, j]
             r2 = w[_R2, j]
+            sdd = w[_SDD, j]
+            sdg = w[_SDG, j]
+            sde = w[_SDE, j]
+            see = w[_SEE, j]
+            seg = w[_SEG, j]
             d = y0 - c * h
-            sdd = w[_SDD, j] + d * d
-            sdg = w[_SDG, j] + d * g
-            sde = w[_SDE, j] + d * he
-            see = w[_SEE, j] + he * he
-            seg = w[_SEG, j] + he * g
+            sdd += d * d
+            sdg += d * g
+            sde += d * he
+            see += he * he
+            seg += he * g
             h = a * h + (p0 + r1 * q0 + r2 * z0)
             he = a * he + (pe0 + r1 * qe0 + r2 * ze0)
             g = ag * g + _G_FLOOR
             d = y1 - c * h
+            sdd += d * d
+            sdg += d * g
+            sde += d * he
+            see += he * he
+            seg += he * g
+            h = a * h + (p1 + r1 * q1 + r2 * z1)
+            he = a * he + (pe1 + r1 * qe1 + r2 * ze1)
+            g = ag * g + _G_FLOOR
+            d = y2 - c * h
+            sdd += d * d
+            sdg += d * g
+            sde += d * he
+            see += he * he
+            seg += he * g
+            h = a * h + (p2 + r1 * q2 + r2 * z2)
+            he = a * he + (pe2 + r1 * qe2 + r2 * ze2)
+            g = ag * g + _G_FLOOR
+            d = y3 - c * h
             w[_SDD, j] = sdd + d * d
             w[_SDG, j] = sdg + d * g
             w[_SDE, j] = sde + d * he
             w[_SEE, j] = see + he * he
             w[_SEG, j] = seg + he * g
-            w[_H, j] = a * h + (p1 + r1 * q1 + r2 * z1)
-            w[_HE, j] = a * he + (pe1 + r1 * qe1 + r2 * ze1)
+            w[_H, j] = a * h + (p3 + r1 * q3 + r2 * z3)
+            w[_HE, j] = a * he + (pe3 + r1 * qe3 + r2 * ze3)
             w[_G, j] = ag * g + _G_FLOOR
-        k += 2
+        k += 4
     return k
 
 
@@ -611,7 +638,7 @@ def moment_swarm_costs(
     The same cost as :func:`plain_moment_swarm_costs`, to rounding. The swarm
     is laid out particle-major in one work array, padded to whole vectors of
     :data:`LANES` doubles, so the particle loop vectorises without remainder
-    or aliasing checks, and the samples are taken four (two) at a time so a
+    or aliasing checks, and the samples are taken four at a time so a
     particle's state stays in registers between its loads and stores. The
     forced responses are kept divided by ``c_0``, which saves a product per
     sample. ``python -m bench.kernel_speed`` measures it against the FMA peak.

@@ -16,6 +16,7 @@ the observer, which runs one window's search while it keeps acquiring.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 
@@ -45,6 +46,12 @@ def coefficients(schedule: str | tuple[float, float], iteration: int) -> tuple[f
     if not isinstance(schedule, str):
         c1, c2 = schedule
         return float(c1), float(c2)
+    return _named_coefficients(schedule, int(iteration))
+
+
+@functools.lru_cache(maxsize=4096)
+def _named_coefficients(schedule: str, iteration: int) -> tuple[float, float]:
+    """:func:`coefficients` of a named schedule, remembered: every swarm step asks for them."""
     if schedule == "social":
         return SOCIAL
     if schedule == "individual":
