@@ -373,19 +373,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         short.append(f"{row.name:<40} p50 {1e3 * p50:7.2f} ms")
     lines.append("")
-    dominant = max(
-        (r for r in kernel_rows if r.case.n_particles == max(args.particle_counts)),
-        key=lambda r: float(np.min(r.fast_s)) * r.case.fmas,
-    )
-    best = dominant.case.n_particles * args.samples / (float(np.min(dominant.fast_s)) * ghz * 1e9)
-    share = best / (PEAK_FMA_LANES_PER_CYCLE / dominant.case.fmas)
-    lines += [
-        "## Targets of issue 12",
-        "",
-        f"- Dominant kernel ({dominant.case.name}, {dominant.case.n_particles} particles) at "
-        f"≥ {100 * TARGET_SHARE_OF_PEAK:g} % of the FMA peak: {100 * share:.0f} % — "
-        f"{'**met**' if share >= TARGET_SHARE_OF_PEAK else '**missed**'}.",
-    ]
+    lines += ["## Targets of issue 12", ""]
+    for n_particles in args.particle_counts:
+        # The case that costs most at this swarm size (time x FMAs: the armature's).
+        dominant = max(
+            (r for r in kernel_rows if r.case.n_particles == n_particles),
+            key=lambda r: float(np.min(r.fast_s)) * r.case.fmas,
+        )
+        best = n_particles * args.samples / (float(np.min(dominant.fast_s)) * ghz * 1e9)
+        share = best / (PEAK_FMA_LANES_PER_CYCLE / dominant.case.fmas)
+        lines.append(
+            f"- Dominant kernel at {n_particles} particles ({dominant.case.name}) at "
+            f"≥ {100 * TARGET_SHARE_OF_PEAK:g} % of the FMA peak: {100 * share:.0f} % — "
+            f"{'**met**' if share >= TARGET_SHARE_OF_PEAK else '**missed**'}."
+        )
     if len(swarm_rows) == 3:
         ratio = float(np.median(swarm_rows[2].times)) / float(np.median(ours.times))
         lines.append(
