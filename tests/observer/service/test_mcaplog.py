@@ -27,8 +27,12 @@ from replay.source import ReplaySource, iter_mcap_blocks
 JS = Path(__file__).resolve().parents[2] / "js"
 OBS = ObserverConfig(
     drive_id="shovel1", motor_id="hoist", window_s=1.0, hop_s=0.25, cold_particles=20,
-    cold_iterations=10, warm_particles=10, warm_iterations=8, health_s=0.2, buffer_s=4.0,
+    cold_iterations=10, warm_particles=10, warm_iterations=8, health_s=0.2, buffer_s=16.0,
+    max_lag_windows=1000,
 )  # fmt: skip
+# The replay runs as fast as it can: a buffer of the whole recording and no skipping of late
+# windows make the daemon estimate every window, so the log's last estimate is a tracked value
+# and not whatever the recording's last window alone says (its end is not informative).
 
 
 class JsonDecoderFactory(McapDecoderFactory):
