@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
+import sys
 import threading
 from pathlib import Path
 from typing import Any
@@ -130,8 +132,7 @@ def main(args: argparse.Namespace) -> int:
             if request == "stop":
                 log.info("stopping (signal)")
                 sdnotify.stopping()
-                daemon.stop()
-                return 0
+                return _stopped(daemon)
             sdnotify.reloading()
             try:
                 new_config, new_source = _load(path)
@@ -140,11 +141,31 @@ def main(args: argparse.Namespace) -> int:
                 sdnotify.ready("reload failed; running the previous configuration")
                 continue
             log.info("reloading %s", path)
-            daemon.stop()
+            stuck = daemon.stop()
+            if stuck:
+                log.warning("reload: threads %s of the old pipeline still run", ", ".join(stuck))
             daemon = start(new_config, new_source)
             sdnotify.ready(f"reloaded; observing drive {new_config.observer.drive_id}")
         if daemon.finished.is_set():
             log.info("source ended; stopping")
             sdnotify.stopping()
-            daemon.stop()
-            return 0
+            return _stopped(daemon)
+
+
+def _stopped(daemon: Any) -> int:
+    """Stop the pipeline; exit status 0.
+
+    A thread that did not end in time may be inside native code (a numba kernel,
+    a Zenoh call). Finalizing the interpreter under it makes CPython end that thread
+    with pthread_exit, whose unwinding through Rust frames aborts the process
+    ("FATAL: exception not rethrown", status -6): with the log file finished and
+    Zenoh closed, the process then ends at once instead.
+    """
+    stuck = daemon.stop()
+    if not stuck:
+        return 0
+    log.warning("threads %s did not stop in time; exiting without waiting", ", ".join(stuck))
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    os._exit(0)

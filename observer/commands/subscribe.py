@@ -16,6 +16,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TextIO
 
+from observer.service.zenohconf import zenoh_error
+
 if TYPE_CHECKING:
     from observer.config import ZenohLinkConfig
 
@@ -87,15 +89,6 @@ def configure(parser: argparse.ArgumentParser) -> None:
         "--warn-after", type=float, default=3.0, metavar="S",
         help="warn if no daemon or router has answered a --connect endpoint after S seconds",
     )  # fmt: skip
-
-
-def zenoh_error(exc: BaseException) -> str:
-    """A Zenoh error as one line for users: without the Rust source paths it carries."""
-    import re
-
-    text = " ".join(str(exc).split())
-    text = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", text)
-    return text.strip(" .[]") or type(exc).__name__
 
 
 def check_keyexpr(keyexpr: str, what: str = "KEYEXPR") -> None:

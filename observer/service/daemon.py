@@ -179,8 +179,14 @@ class Daemon:
         self._obs.start()
         self._acq.start()
 
-    def stop(self, timeout: float = 10.0) -> None:
-        """Stop in reverse order: source, observer, Zenoh, log (the MCAP file is finished)."""
+    def stop(self, timeout: float = 10.0) -> list[str]:
+        """Stop in reverse order: source, observer, Zenoh, log (the MCAP file is finished).
+
+        Returns the names of the threads still running after ``timeout`` seconds each
+        (normally none). Such a thread may be inside native code (a numba kernel, a
+        Zenoh call): the interpreter must not be finalized under it, see
+        :func:`observer.commands.run.main`.
+        """
         self._stop.set()
         self.ring.notify()
         self._acq.join(timeout)
@@ -189,9 +195,11 @@ class Daemon:
         except Exception as exc:
             log.warning("closing the source: %s", exc)
         self._obs.join(timeout)
-        self.zenoh.close()
+        self.zenoh.close(timeout)
         if self.mcap is not None:
             self.mcap.close()
+        threads = (self._acq, self._obs, *self.zenoh.threads())
+        return [t.name for t in threads if t.is_alive()]
 
     # ------------------------------------------------------------------ acquisition
 
@@ -237,6 +245,8 @@ class Daemon:
                     # An observer slower than the data never leaves this loop: health
                     # and the watchdog must not wait for it to catch up.
                     self._periodic()
+                    if self._stop.is_set():  # stop now, not after every window ready
+                        break
             except Exception as exc:  # never die silently: count, log, go on
                 self.observer.counts["observer_errors"] += 1
                 self.observer_error = f"{type(exc).__name__}: {exc}"

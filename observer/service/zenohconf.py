@@ -25,6 +25,16 @@ from observer.config import AccessConfig, ZenohLinkConfig
 
 ROOT = "dcobserver"
 
+
+def zenoh_error(exc: BaseException) -> str:
+    """A Zenoh error as one line for users: without the Rust source paths it carries."""
+    import re
+
+    text = " ".join(str(exc).split())
+    text = re.sub(r"\s*at /\S+\.rs:\d+\.?", "", text)
+    return text.strip(" .[]") or type(exc).__name__
+
+
 #: Messages a drive's observer sends into a session (its estimates and health, its
 #: ``latest`` queryable and the replies to queries of it).
 _PUBLISHER_INGRESS = ["put", "delete", "declare_queryable", "reply"]

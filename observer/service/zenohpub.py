@@ -20,9 +20,12 @@ import time
 from typing import Any
 
 from observer.config import ZenohConfig
-from observer.service.zenohconf import key, session_json
+from observer.service.zenohconf import key, session_json, zenoh_error
 
 log = logging.getLogger(__name__)
+
+#: Queries of ``latest`` waiting for an answer; beyond it the oldest is dropped.
+QUERY_BACKLOG = 16
 
 
 class ZenohPublisher:
@@ -47,6 +50,7 @@ class ZenohPublisher:
             "last_error": "",
         }
         self._thread = threading.Thread(target=self._connect_loop, name="zenoh-open", daemon=True)
+        self._server: threading.Thread | None = None
 
     def _key(self, leaf: str) -> str:
         return key(self.drive_id, leaf, self.motor_id)
@@ -67,11 +71,16 @@ class ZenohPublisher:
                     leaf: session.declare_publisher(self._key(leaf), congestion_control=drop)
                     for leaf in ("estimate", "health", "event")
                 }
-                queryable = session.declare_queryable(self._key("latest"), self._on_query)
+                # A channel, served by a thread of ours, not a Python callback: zenoh runs a
+                # callback in a thread of its own, daemonic here, which the interpreter
+                # could finalize while it waits inside Zenoh (an abort at exit).
+                queryable = session.declare_queryable(
+                    self._key("latest"), zenoh.handlers.RingChannel(QUERY_BACKLOG)
+                )
             except Exception as exc:
                 with self._lock:
                     self._health["errors"] += 1
-                    self._health["last_error"] = str(exc).splitlines()[0] if str(exc) else repr(exc)
+                    self._health["last_error"] = zenoh_error(exc)
                     self._health["state"] = "unreachable"
                 log.warning(
                     "zenoh: cannot open session (%s); estimating goes on, retry in %g s",
@@ -87,6 +96,11 @@ class ZenohPublisher:
                 self._publishers = publishers
                 self._queryable = queryable
                 self._health["state"] = "open"
+                self._server = threading.Thread(
+                    target=self._serve, args=(queryable.handler,), name="zenoh-latest",
+                    daemon=True,
+                )  # fmt: skip
+                self._server.start()
             log.info(
                 "zenoh: publishing on %s (listen %s, connect %s)",
                 self._key("{estimate,health,event,latest}"),
@@ -118,8 +132,22 @@ class ZenohPublisher:
             self._stop.wait(min(0.02, remaining))
         return False
 
+    def _serve(self, handler: Any) -> None:
+        """Answer the queries of ``latest`` until the queryable is undeclared.
+
+        ``handler`` is the queryable's channel (receiving from it, not from the
+        queryable, leaves the queryable free to be undeclared meanwhile).
+        """
+        while True:
+            try:
+                query = handler.recv()
+            except Exception:  # undeclared: its channel is closed
+                return
+            self._on_query(query)
+            del query  # a query is finished (its final reply sent) when it is dropped
+
     def _on_query(self, query: Any) -> None:
-        # Runs on a zenoh thread: only reads a reference and replies, never blocks.
+        # Only reads a reference and replies, never blocks.
         latest = self._latest
         self._health["queries"] += 1
         try:
@@ -167,9 +195,22 @@ class ZenohPublisher:
             health["subscriber_matched"] = False
         return health
 
-    def close(self) -> None:
-        """Undeclare and close the session (reverse order of opening)."""
+    def threads(self) -> tuple[threading.Thread, ...]:
+        """The threads this publisher started: the one opening the session, the one
+        answering queries."""
+        started = (self._thread, self._server)
+        return tuple(t for t in started if t is not None and t.ident is not None)
+
+    def close(self, timeout: float = 10.0) -> None:
+        """Undeclare and close the session (reverse order of opening).
+
+        Waits up to ``timeout`` seconds each for the threads opening the session and
+        answering queries: a thread left inside a Zenoh call when the interpreter
+        exits aborts the process ("FATAL: exception not rethrown", status -6).
+        """
         self._stop.set()
+        if self._thread.ident is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout)
         with self._lock:
             session, self._session = self._session, None
             publishers, self._publishers = self._publishers, {}
@@ -185,3 +226,5 @@ class ZenohPublisher:
                 session.close()
         except Exception as exc:
             log.warning("zenoh: error while closing: %s", exc)
+        if self._server is not None:
+            self._server.join(timeout)

@@ -300,6 +300,9 @@ def test_unreachable_zenoh_and_full_log_disk_keep_it_estimating(
     cfg = _config(tmp_path, ra_rise_recording, speed=2.0, zenoh=zenoh, log_dir=log_dir)
     daemon = children(["run", "--config", str(cfg)], prefix=("prlimit", "--fsize=150000"))
     daemon.wait_line(r"health: .*zenoh_unreachable", timeout=60)
+    # Zenoh's error, in one line a user reads: without the Rust source paths it carries.
+    warning = next(line for line in daemon.stderr if "cannot open session" in line)
+    assert ".rs:" not in warning and "/root/" not in warning, warning
     daemon.wait_line(r"health: .*log_error", timeout=60)
     # Still estimating after both faults were reported:
     daemon.wait_line(r"window \d+ t=", timeout=30)
