@@ -166,15 +166,9 @@ def print_warnings(command: str, warnings: Iterable[str]) -> None:
 
 def finite_json(value: Any) -> Any:
     """``value`` ready for strict JSON: NaN and infinities become null (JSON has neither)."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): finite_json(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [finite_json(v) for v in value]
-    if hasattr(value, "item"):  # numpy scalars
-        return finite_json(value.item())
-    return value
+    from observer.service.mcaplog import json_safe
+
+    return json_safe(value)
 
 
 def table(rows: Sequence[Sequence[str]], align: str) -> list[str]:

@@ -241,23 +241,23 @@ HEALTH_SCHEMA: dict[str, Any] = {
 _FILE_NUMBERS = itertools.count(1)  # per process, across McapLog instances (reloads)
 
 
-def _json_safe(value: Any) -> Any:
+def json_safe(value: Any) -> Any:
+    """``value`` ready for strict JSON: NaN and infinities become null (JSON has neither),
+    numpy scalars Python numbers, mapping keys strings."""
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, Mapping):
-        return {str(k): _json_safe(v) for k, v in value.items()}
+        return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return _json_safe(float(value))
+        return [json_safe(v) for v in value]
+    if isinstance(value, np.generic):
+        return json_safe(value.item())
     return value
 
 
 def to_json(obj: Any) -> bytes:
     """Compact JSON with non-finite floats as null."""
-    return json.dumps(_json_safe(obj), separators=(",", ":"), allow_nan=False).encode()
+    return json.dumps(json_safe(obj), separators=(",", ":"), allow_nan=False).encode()
 
 
 def _channels_metadata(scales: Mapping[str, AdcScale]) -> dict[str, str]:
