@@ -358,12 +358,14 @@ def smooth_moments(v: np.ndarray, segments: Segments, shift: float = 0.0) -> np.
     interval at once. Segments shorter than :data:`MIN_SPECTRAL_SEGMENT`
     samples keep the cubic (:func:`cubic_moments`).
     """
-    mu = cubic_moments(v, segments, shift)
+    lengths = segments.ends - segments.starts + 1
+    short = lengths < MIN_SPECTRAL_SEGMENT
+    mu = cubic_moments(
+        v, Segments(segments.starts[short], segments.ends[short], segments.n_samples), shift
+    )
     x = np.asarray(v, dtype=np.float64)
-    for st, en in zip(segments.starts, segments.ends, strict=True):
+    for st, en in zip(segments.starts[~short], segments.ends[~short], strict=True):
         m = int(en) - int(st) + 1
-        if m < MIN_SPECTRAL_SEGMENT:
-            continue
         seg = x[st : en + 1]
         ext = np.concatenate([seg, seg[-2:0:-1]])
         n = ext.shape[0]

@@ -190,11 +190,17 @@ class WindingProblem:
         lag: float | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Residual (A) and each segment's initial current (A) at these parameters."""
+        return self._simulated(resistance, inductance, emf_constant, self.mu(shift, lag))
+
+    def _simulated(
+        self, resistance: float, inductance: float, emf_constant: float, mu: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Residual (A) and initial currents (A) for the voltage moments ``mu``."""
         seg = self.inp.segments
         out = np.empty(seg.covered)
         initial = np.empty(seg.count)
         ik.moment_residual(
-            resistance, inductance, emf_constant, self.mu(shift, lag), self.mu_emf, self.current,
+            resistance, inductance, emf_constant, mu, self.mu_emf, self.current,
             seg.starts, seg.ends, self.dt, self.emf is not None, out, initial,
         )  # fmt: skip
         return out, initial
@@ -208,17 +214,8 @@ class WindingProblem:
         """
         resistance, inductance, k, shift = self.unpack(theta)
         mu = self.mu(shift, self.lag_of(theta))
-        seg = self.inp.segments
-        out = []
-        for moments in (mu, mu + np.array([1.0, 0.0, 0.0])):
-            r = np.empty(seg.covered)
-            initial = np.empty(seg.count)
-            ik.moment_residual(
-                resistance, inductance, k, moments, self.mu_emf, self.current,
-                seg.starts, seg.ends, self.dt, self.emf is not None, r, initial,
-            )  # fmt: skip
-            out.append(r)
-        return out[1] - out[0]
+        raised, _ = self._simulated(resistance, inductance, k, mu + np.array([1.0, 0.0, 0.0]))
+        return raised - self.residual(theta)
 
     def best_k(self, resistance: float, inductance: float, shift: float) -> float:
         """``K`` solved in closed form at ``(R, L, shift)`` (the held value if held)."""
