@@ -38,27 +38,30 @@ class Case:
 
 
 def _drive(name: str):  # type: ignore[no-untyped-def]
+    """A drive of :mod:`bench.accuracy_rates`, or its thyristor drive behind another chain."""
+    from bench.accuracy_rates import drive_spec
     from observer.simulation.chain import ChannelChain, MeasurementChain
-    from observer.simulation.converter import PRESETS, REALISTIC_CHANNEL, ConverterSpec
+    from observer.simulation.converter import REALISTIC_CHANNEL
 
-    realistic = PRESETS["realistic"]
-    assert realistic is not None
     if name == "realistic":
-        return realistic
-    if name == "no-filter":
-        return realistic.replace(chain=MeasurementChain.uniform(ChannelChain(bits=12)))
+        return drive_spec("thyristor")
     if name == "chopper":
-        return realistic.replace(converter=ConverterSpec(armature="chopper", field="chopper"))
+        return drive_spec("chopper")
+    if name == "no-filter":
+        return drive_spec("thyristor").replace(
+            chain=MeasurementChain.uniform(ChannelChain(bits=12))
+        )
     if name == "rc1-voltages":
         chain = MeasurementChain.uniform(REALISTIC_CHANNEL)
         for ch in ("va", "vf"):
             chain = chain.with_channel(ch, filter="rc", order=1)
-        return realistic.replace(chain=chain)
+        return drive_spec("thyristor").replace(chain=chain)
     raise SystemExit(f"unknown drive {name!r}")
 
 
 def run_case(case: Case, duration_s: float = 30.0) -> dict[str, np.ndarray]:
     """Errors, stds and the quality flag of every window of one recording."""
+    from bench.accuracy_rates import PARAMETERS
     from observer.config import QualityConfig
     from observer.estimation import estimate_armature, estimate_field
     from observer.estimation.motor import MOTORS
@@ -74,10 +77,7 @@ def run_case(case: Case, duration_s: float = 30.0) -> dict[str, np.ndarray]:
     kw = dict(n_particles=40, max_iterations=40, rng=0)
     whole_f = estimate_field(sig["vf"], sig["if"], dt, **kw)
     whole_a = estimate_armature(sig["va"], sig["ia"], sig["if"], sig["omega"], dt, **kw)
-    truth = np.array([
-        motor.field_resistance_ohm, motor.field_inductance_h, motor.armature_resistance_ohm,
-        motor.armature_inductance_h, motor.emf_constant_h,
-    ])  # fmt: skip
+    truth = np.array([getattr(motor, PARAMETERS[name][2]) for name in NAMES])
     quality = QualityConfig()
     limit = np.array([*quality.limits("field").values(), *quality.limits("armature").values()])
     n = sig["va"].shape[0]
