@@ -209,6 +209,16 @@ def _step_run(args: tuple[str, float, int, float, float]) -> dict[str, Any]:
         and ev["t_ns"] / 1e9 >= at_s
     ]  # fmt: skip
     first = hits[0] if hits else None
+    config = Config()
+    identified = None  # end of the first window wholly after the step that identifies it
+    if target in WHERE:
+        circuit, letter = WHERE[target]
+        limit = config.observer.quality.limits(circuit)[letter]
+        for e in estimates:
+            rel = ((e.get(circuit) or {}).get("rel_std") or {}).get(letter)
+            if e["window"][0] / 1e9 >= at_s and rel is not None and rel <= limit:
+                identified = e["t_ns"] / 1e9
+                break
     # The drive runs near standstill now and then: a tachometer's gain error shows only
     # once it moves, so its delay is also counted from the first moving window.
     others = [ev for ev in events if first is None or ev is not first]
@@ -222,6 +232,10 @@ def _step_run(args: tuple[str, float, int, float, float]) -> dict[str, Any]:
         "at_s": at_s,
         "detected": first is not None,
         "delay_s": None if first is None else first["t_ns"] / 1e9 - at_s,
+        # Seconds from the step to the first window wholly after it that identifies the
+        # parameter within its quality limit (a drive at rest or at constant speed
+        # does not): no test can size the step before.
+        "identified_s": None if identified is None else identified - at_s,
         "reported": None if first is None else first["relative"],
         "t_change_s": None
         if first is None
@@ -244,8 +258,8 @@ def steps(seeds: int, workers: int, duration_s: float = 30.0) -> list[dict[str, 
 def steps_table(runs: Sequence[dict[str, Any]]) -> str:
     lines = [
         "| step | detected | delay (s) median / 90 % / max | within 2 s | size reported (median) "
-        "| other events |",
-        "|---|---|---|---|---|---|",
+        "| other events | first identifying window (s) max; delay after it max |",
+        "|---|---|---|---|---|---|---|",
     ]
     for target, relative in STEPS:
         rs = [r for r in runs if r["target"] == target]
@@ -261,9 +275,19 @@ def steps_table(runs: Sequence[dict[str, Any]]) -> str:
                 else "-"
             )
             + f" | {sum(d <= 2.0 for d in delays)}/{len(rs)} | {100 * size:+.1f} % | "
-            + f"{sum(len(r['other_events']) for r in rs)} |"
+            + f"{sum(len(r['other_events']) for r in rs)} | "
+            + _identified_cell(hit)
+            + " |"
         )
     return "\n".join(lines)
+
+
+def _identified_cell(hit: Sequence[dict[str, Any]]) -> str:
+    known = [r for r in hit if r.get("identified_s") is not None]
+    if not known:
+        return "-"
+    after = max(r["delay_s"] - r["identified_s"] for r in known)
+    return f"{max(r['identified_s'] for r in known):.2f}; {after:.2f}"
 
 
 # ---------------------------------------------------------------- false alarms

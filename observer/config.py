@@ -343,7 +343,8 @@ class SpeedConfig:
     n_sigma: float = dataclasses.field(default=4.0, metadata={"check": _positive})
     # Only windows where a reading this much low (relative) would show count, for or against.
     min_loss: float = dataclasses.field(default=0.05, metadata={"check": _fraction})
-    # Disagreement this long (s) raises the event (and as long an agreement clears it).
+    # Disagreement this long (s) raises the event (and as long an agreement clears it); a
+    # window short by k margins counts k times, at most half of this (never one window alone).
     alarm_s: float = dataclasses.field(default=0.5, metadata={"check": _positive})
     # Without a speed channel the armature is not estimated (K and the speed cannot be
     # told apart): the EMF speed then uses these (0: no EMF speed).

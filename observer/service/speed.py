@@ -18,10 +18,13 @@ measured speed is below the EMF speed by more than ``tolerance`` (model error,
 relative to the speed the armature voltage stands for) plus ``n_sigma`` sigmas is
 *suspect*: the tracker does not take ``K`` from it, and after ``alarm_s`` of
 suspect windows the tachometer is reported faulty (and cleared after as long
-an agreement). A sensor reading *high* and a weakened field are the same thing
-to the armature equation; that case is reported as a change of ``K`` (a field
-fault). Windows near standstill, where a gain error of the sensor does not
-show, neither raise nor clear the alarm.
+an agreement). A window short by several margins is stronger evidence than
+one just beyond it: it counts as that many windows (a sensor that lost 10 %
+against a 2 % margin is flagged within two windows), but never more than half
+of ``alarm_s``, so no window alone raises the alarm. A sensor reading *high*
+and a weakened field are the same thing to the armature equation; that case is
+reported as a change of ``K`` (a field fault). Windows near standstill, where
+a gain error of the sensor does not show, neither raise nor clear the alarm.
 """
 
 from __future__ import annotations
@@ -117,20 +120,29 @@ class TachometerCheck:
         self.config = config
         self.faulty = False
         self.windows_needed = max(1, math.ceil(config.alarm_s / hop_s - 1e-9))
+        # What one window can count towards them (in windows): half, so never one alone.
+        self.most_per_window = max(1.0, 0.5 * self.windows_needed)
         self._run: list[int] = []  # window ends of the present run against the state
+        self._weight = 0.0  # what the present run counts, in windows
         self.counts = {"suspect_windows": 0, "alarms": 0}
 
     def judge(self, speed: SpeedEstimate | None) -> bool | None:
         """True: the window is suspect (sensor reads low); False: agreement; None: can't tell."""
+        depth = self.depth(speed)
+        return None if depth is None else depth > 1.0
+
+    def depth(self, speed: SpeedEstimate | None) -> float | None:
+        """How far the measured speed reads below the EMF speed, in margins
+        (``tolerance * scale + n_sigma * sigma``); None where a window cannot tell."""
         if speed is None or speed.measured_rad_s is None:
             return None
         cfg = self.config
         sigma = math.hypot(speed.std_rad_s, speed.measured_std_rad_s)
         margin = cfg.tolerance * speed.scale_rad_s + cfg.n_sigma * sigma
-        if margin > cfg.min_loss * abs(speed.emf_rad_s):
+        if not margin > 0 or margin > cfg.min_loss * abs(speed.emf_rad_s):
             return None  # near standstill a gain error does not show
         deficit = math.copysign(1.0, speed.emf_rad_s) * (speed.emf_rad_s - speed.measured_rad_s)
-        return deficit > margin
+        return deficit / margin
 
     def update(
         self, t_ns: int, speed: SpeedEstimate | None
@@ -139,19 +151,23 @@ class TachometerCheck:
         when the alarm is raised or cleared (else None)."""
         if not self.config.check_tachometer:
             return None, None
-        suspect = self.judge(speed)
-        if suspect is None:
+        depth = self.depth(speed)
+        if depth is None:
             return None, None
+        suspect = depth > 1.0
         if suspect:
             self.counts["suspect_windows"] += 1
         if suspect == self.faulty:  # the present state confirmed: no run towards a change
             self._run.clear()
+            self._weight = 0.0
             return suspect, None
         self._run.append(t_ns)
-        if len(self._run) < self.windows_needed:
+        self._weight += min(depth, self.most_per_window) if suspect else 1.0
+        if self._weight < self.windows_needed - 1e-9:
             return suspect, None
         since = self._run[0]
         self._run.clear()
+        self._weight = 0.0
         self.faulty = suspect
         assert speed is not None and speed.measured_rad_s is not None
         relative = speed.measured_rad_s / speed.emf_rad_s - 1.0

@@ -533,6 +533,21 @@ class MotorTracker:
             and 0 < ev.rel_std <= limit
         )  # fmt: skip
 
+    def _shows_level(self, tr: _Transition, ev: Evidence) -> bool:
+        """Whether a window after a confirmed change counts towards its new level.
+
+        A window within the quality limit does; so does a weaker one that shows
+        the step by itself (its fit ``gate_sigma`` of its std or more from the
+        level before): after a step the drive may well stop or run steadily,
+        and the fits that then separate ``Ra`` from ``K`` are weak but plain.
+        """
+        if self._usable(tr.parameter, ev):
+            return True
+        if not (math.isfinite(ev.value) and ev.value > 0 and math.isfinite(ev.rel_std)):
+            return False
+        shown = abs(math.log(ev.value) - float(tr.before.x[0]))
+        return 0 < ev.rel_std * self.config.gate_sigma <= shown
+
     def _measurement_variance(self, ev: Evidence) -> tuple[float, float]:
         """Variance of a fit as one of overlapping windows (for weighing), and alone.
 
@@ -585,9 +600,7 @@ class MotorTracker:
         names = self._circuit(circuit)
         m = math.log1p(self._min_change(tr.parameter))
         ev = evidence.get(tr.parameter)
-        usable = ev is not None and self._usable(tr.parameter, ev)
-        if usable:
-            assert ev is not None
+        if ev is not None and self._shows_level(tr, ev):
             tr.recent.append((t_ns, math.log(ev.value), ev.rel_std**2))
         zs = [z for _, z, _ in tr.recent]
         # Consecutive windows agreeing within their noise, and closer than windows sliding
@@ -612,9 +625,11 @@ class MotorTracker:
             )
             return
         del self.transitions[circuit]
-        # The latest window is the one most wholly after the change (and the windows
-        # are too correlated for their mean to be worth more).
-        z, alone = tr.recent[-1][1], tr.recent[-1][2]
+        # The settled windows weighed by their precision (a weak one that shows the step
+        # must not size it); correlated, so together worth no more than the best alone.
+        weights = [1.0 / v for _, _, v in tr.recent]
+        z = sum(w * zi for w, (_, zi, _) in zip(weights, tr.recent, strict=True)) / sum(weights)
+        alone = min(v for _, _, v in tr.recent)
         first_ns = tr.recent[0][0]
         r = self.overlap * alone
         track = self.tracks[tr.parameter]

@@ -338,7 +338,7 @@ class SlidingWindowObserver:
             return self._skip(index, t0, end_ns, "no_circuit_channels")
         # The EMF speed from the state *before* this window: a window must not
         # vouch for itself (a tachometer reading low would teach K its error).
-        speed = self._emf_speed(signals, period_s)
+        speed = self._emf_speed(signals, period_s, fits.get("armature"))
         suspect, tach_event = self.tachometer.update(int(end_ns), speed)
         distrust = frozenset({"K"}) if self.tachometer.distrusts_k(suspect) else frozenset()
         step = self.tracker.step(
@@ -600,9 +600,23 @@ class SlidingWindowObserver:
             out[circuit] = (temp, std)
         return out
 
-    def _speed_parameters(self) -> tuple[dict[str, tuple[float, float]] | None, str]:
-        """``Ra, La, K`` (value, relative std) for the EMF speed, and where they come from."""
+    def _speed_parameters(
+        self, fit: CircuitEstimate | None = None
+    ) -> tuple[dict[str, tuple[float, float]] | None, str]:
+        """``Ra, La, K`` (value, relative std) for the EMF speed, and where they come from.
+
+        ``La`` only weighs the current's change over the window (``La * dia/dt``
+        averages to ``La * (ia_end - ia_start) / window``), and some drives run
+        for long without a window that identifies it: until it is tracked, the
+        window's own fit ``fit`` stands in with its std (at most 100 %), so the
+        tachometer is checked from the first windows that know ``Ra`` and ``K``.
+        """
         tracked = {n: (self.tracker.value(n), self.tracker.rel_std(n)) for n in ("Ra", "La", "K")}
+        la_fit = None if fit is None else fit.inductance_h
+        if tracked["La"][0] is None and la_fit is not None and math.isfinite(la_fit) and la_fit > 0:
+            assert fit is not None
+            la_rel = fit.relative_std("L")
+            tracked["La"] = (la_fit, min(la_rel, 1.0) if math.isfinite(la_rel) else 1.0)
         if all(v is not None and s is not None for v, s in tracked.values()):
             return {n: (float(v), float(s)) for n, (v, s) in tracked.items()}, "tracked"  # type: ignore[arg-type]
         cfg = self.config.speed
@@ -612,10 +626,12 @@ class SlidingWindowObserver:
             )
         return None, ""
 
-    def _emf_speed(self, signals: dict[str, np.ndarray], period_s: float) -> SpeedEstimate | None:
+    def _emf_speed(
+        self, signals: dict[str, np.ndarray], period_s: float, fit: CircuitEstimate | None
+    ) -> SpeedEstimate | None:
         if any(np.isnan(signals[c][0]) for c in ("va", "ia", "if")):
             return None
-        params, _source = self._speed_parameters()
+        params, _source = self._speed_parameters(fit)
         if params is None:
             return None
         omega = None if np.isnan(signals["omega"][0]) else signals["omega"]

@@ -29,12 +29,13 @@ def test_accuracy_prints_window_fit_and_tracked_shares(tmp_path, capsys):
 
 def test_steps_and_false_alarm_summaries():
     runs = [
-        {"target": "Ra", "detected": True, "delay_s": d, "reported": 0.03, "other_events": []}
+        {"target": "Ra", "detected": True, "delay_s": d, "reported": 0.03, "other_events": [],
+         "identified_s": d - 0.3}
         for d in (0.8, 1.2, 2.5)
     ] + [{"target": "K", "detected": False, "delay_s": None, "reported": None,
           "other_events": ["x"]}]  # fmt: skip
     table = tracker_bench.steps_table(runs)
-    assert "| Ra +3 % | 3/3 | 1.20 / 2.24 / 2.50 | 2/3 | +3.0 % | 0 |" in table
+    assert "| Ra +3 % | 3/3 | 1.20 / 2.24 / 2.50 | 2/3 | +3.0 % | 0 | 2.20; 0.30 |" in table
     assert "| K -5 % | 0/1 | - | 0/1 |" in table
     clean = [{"duration_s": 1800.0, "windows": 100, "events": [], "replay_s": 600.0}] * 2
     line = tracker_bench.false_alarm_line(clean)

@@ -66,7 +66,8 @@ def test_tachometer_reading_low_raises_after_alarm_s_and_clears_after_agreement(
         if event:
             events.append(event)
     assert len(events) == 1 and events[0]["state"] == "fault"
-    assert events[0]["t_ns"] - events[0]["since_ns"] == 400_000_000  # 5 windows
+    # 10 % low against a margin of ~2 %: each window counts for half of alarm_s.
+    assert events[0]["t_ns"] - events[0]["since_ns"] == 100_000_000  # 2 windows
     assert events[0]["relative"] == pytest.approx(-0.1)
     assert check.faulty and check.distrusts_k(None)
     # Standstill: neither raises nor clears.
@@ -77,6 +78,17 @@ def test_tachometer_reading_low_raises_after_alarm_s_and_clears_after_agreement(
     cleared = [check.update(t + k * 100_000_000, _speed(-150.0, -150.0))[1] for k in range(1, 7)]
     assert [e["state"] for e in cleared if e] == ["cleared"]
     assert not check.faulty
+
+
+def test_a_disagreement_just_beyond_the_margin_needs_alarm_s():
+    check = TachometerCheck(SpeedConfig(alarm_s=0.5), hop_s=0.1)
+    margin = 0.02 * 155.0 + 4.0 * 0.01 * 2**0.5  # tolerance * scale + n_sigma * sigma
+    events = []
+    for k in range(1, 11):
+        suspect, event = check.update(k * 100_000_000, _speed(150.0, 150.0 - 1.2 * margin))
+        assert suspect
+        events += [(k, event)] if event else []
+    assert [k for k, _ in events] == [5]  # five windows of 1.2 margins: 0.5 s
 
 
 def test_a_measured_speed_above_the_emf_speed_is_not_a_tachometer_fault():

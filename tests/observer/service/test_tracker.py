@@ -148,6 +148,25 @@ def test_a_step_is_confirmed_with_its_size_and_time(name, relative):
     assert trk.value(name) == pytest.approx(TRUTH[name] * (1 + relative), rel=0.002)
 
 
+def test_weak_windows_that_show_a_step_plainly_size_it():
+    """After a field fault the drive runs steadily: K's fits are beyond the quality limit,
+    yet each shows the -5 % step at 4.5 sigma; the change is confirmed from them, not held
+    until the drive accelerates again."""
+    fits = Fits(4)
+    trk = _tracker()
+    step_at, steady_from = 20.03, 20.6
+    events = []
+    for i in range(260):
+        t = (i + 1) * 0.1
+        window = fits(_mixed("K", -0.05, step_at, t))
+        if t > steady_from:  # K and Ra no longer separate well
+            window["K"] = Evidence(1.12 * 0.95 * (1 + 0.002 * math.sin(t)), 1.1 * LIMITS["K"])
+        events += trk.step(int(round(t * 1e9)), window).changes
+    assert [e.parameter for e in events] == ["K"]
+    assert events[0].t_detected_ns / 1e9 - step_at <= 1.6
+    assert events[0].relative == pytest.approx(-0.05, abs=0.01)
+
+
 def test_a_change_below_the_smallest_announced_is_tracked_quietly():
     fits = Fits(3)
     trk = _tracker()

@@ -155,6 +155,21 @@ def test_tracked_state_temperatures_and_emf_speed_are_published(p12_run):
     assert not any(r.estimate["events"] for r in results)
 
 
+def test_the_emf_speed_does_not_wait_for_a_tracked_la(p12_recording):
+    """Some duty cycles go long without a window that pins La; its term in a window's mean
+    EMF is small, so the window's own La fit stands in and the tachometer is checked as
+    soon as Ra and K are tracked."""
+    _, results = _run(_blocks(p12_recording), quality=QualityConfig(L=1e-9))  # La never ok
+    estimates = [r.estimate for r in results if r.estimate is not None]
+    assert all(e["armature"]["quality"]["L"] == "none" for e in estimates)
+    known = [e for e in estimates if e["armature"]["K"] is not None and e["armature"]["R"]]
+    assert len(known) > 10
+    for e in known[1:]:  # the EMF speed is from the state before the window
+        speed = e["speed"]
+        assert speed["emf_rad_s"] is not None and speed["measured_rad_s"] is not None
+        assert speed["emf_rad_s"] == pytest.approx(speed["measured_rad_s"], abs=2.0)
+
+
 def test_a_tachometer_losing_a_tenth_of_its_reading_is_flagged_within_2_s():
     """The EMF speed from the tracked parameters disagrees with the measured one: an event,
     and K is not learnt from the faulty speed (it would rise 11 %)."""
