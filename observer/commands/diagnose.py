@@ -24,6 +24,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--particles", type=int, default=24, help="swarm size of each extension")
     parser.add_argument("--iterations", type=int, default=40, help="swarm iterations per extension")
     parser.add_argument("--seed", type=int, default=0, help="seed of the swarms")
+    parser.add_argument(
+        "--config", metavar="FILE", default=None,
+        help="dcobserver config whose [chain] (intersample model, front ends) the diagnosis "
+        "uses (default: none, decided from the data)",
+    )  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     from observer.commands.estimate import add_units_option
 
@@ -48,6 +53,11 @@ def main(args: argparse.Namespace) -> int:
         if bad:
             raise UserError(f"unknown effect(s) {', '.join(bad)}; expected {', '.join(LIBRARY)}")
     check_outputs(("--json", args.json), ("--report", args.report))
+    chain: Any = None
+    if args.config:
+        from observer.config import load_config
+
+        chain = load_config(args.config).chain
     rec = read_checked(args.recording, args.units)
     rec.require("va", "ia", "vf", "if", "omega", path=args.recording, purpose="a diagnosis")
     findings = check_data(dict(rec.signals), rec.dt, ("field", "armature"), t=rec.t)
@@ -55,7 +65,7 @@ def main(args: argparse.Namespace) -> int:
     diag = diagnose(
         rec, effects=effects, n_particles=args.particles, iterations=args.iterations,
         seed=args.seed, progress=not args.quiet,
-        path=args.recording,
+        path=args.recording, chain=chain,
     )  # fmt: skip
     param_units = {
         p.name: ("1" if p.unit == "-" else p.unit)
@@ -83,6 +93,8 @@ def main(args: argparse.Namespace) -> int:
             f"held-out {100 * ev['holdout_gain']:+.2f} % (LR {ev['holdout_lr']:.1f}), "
             f"rms {f.channel} {eng(f.rms_before, 'A')} -> {eng(f.rms_after, 'A')}"
         )
+    for c in diag.chain:
+        print(f"  chain {c.kind} on {c.channel}: {c.advice}")
     for w in warnings:
         print(f"warning: {w}")
     return 0

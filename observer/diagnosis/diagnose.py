@@ -40,6 +40,7 @@ each a function of its own:
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import sys
@@ -50,6 +51,13 @@ from typing import Any
 import numpy as np
 
 from observer.diagnosis import kernels as dk
+from observer.diagnosis.chain import (
+    VoltageSpectrum,
+    alias_finding,
+    no_filter_finding,
+    skew_finding,
+    voltage_spectrum,
+)
 from observer.diagnosis.effects import LIBRARY, Combination, DataContext, Effect, context_from
 from observer.diagnosis.fitting import (
     CandidateModel,
@@ -75,6 +83,7 @@ from observer.diagnosis.results import (
 )
 from observer.estimation import CircuitEstimate, estimate_armature, estimate_field
 from observer.estimation.armature import armature_problem
+from observer.estimation.frontend import winding_front_ends
 from observer.estimation.intersample import MIN_SWITCHED_SHARE, InputModel, find_switching
 from observer.estimation.problem import make_problem
 from observer.estimation.ranges import kernel_array
@@ -93,6 +102,10 @@ UNEXPLAINED_Z = 10.0
 #: ... and at least this large against the floor's rms: in a long recording a tiny,
 #: harmless systematic error becomes significant; it must also matter.
 UNEXPLAINED_SIZE = 0.05
+
+#: A residual this many times the noise floor's rms is unexplained (also after a named
+#: effect's fit).
+UNEXPLAINED_EXCESS = 1.5
 
 #: A relative delay of the voltage channel beyond this (sample periods) is taken for
 #: the winding's physics, not the chain's (see :func:`fit_baseline`).
@@ -125,6 +138,10 @@ class Baseline:
         ``K`` of the armature residual's projection.
     rms : dict
         RMS of each residual (A).
+    shifts : dict
+        Per circuit, the relative delay of the voltage behind the current the
+        estimator fitted first, and its standard deviation (sample periods),
+        kept when the baseline was refitted without it.
     """
 
     field: CircuitEstimate
@@ -135,19 +152,40 @@ class Baseline:
     residuals: dict[str, np.ndarray]
     k: float
     rms: dict[str, float]
+    shifts: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
 
-def fit_baseline(rec: Any, *, n_particles: int, iterations: int, seed: int) -> Baseline:
-    """Stage 1: the plain model on the whole recording, without EIV compensation."""
+def fit_baseline(
+    rec: Any, *, n_particles: int, iterations: int, seed: int, chain: Any = None
+) -> Baseline:
+    """Stage 1: the plain model on the whole recording, without EIV compensation.
+
+    ``chain`` (an :class:`observer.config.ChainConfig`) is the measurement
+    chain as far as the user knows it: its intersample model and the
+    channels' front ends, as ``dcobserver estimate --config`` takes them.
+    """
     rng = np.random.default_rng(seed)
     dt = rec.dt
+    chain_kw: dict[str, dict[str, Any]] = {
+        c: {
+            "intersample": chain.intersample if chain is not None else "auto",
+            "front_ends": winding_front_ends(chain, c),
+        }
+        for c in ("field", "armature")
+    }
     field_est = estimate_field(
         rec["vf"], rec["if"], dt, n_particles=n_particles, max_iterations=iterations, rng=rng,
+        **chain_kw["field"],
     )  # fmt: skip
     arm_est = estimate_armature(
         rec["va"], rec["ia"], rec["if"], rec["omega"], dt, n_particles=n_particles,
         max_iterations=iterations, rng=rng, compensate_input_noise=False,
+        **chain_kw["armature"],
     )  # fmt: skip
+    shifts = {
+        "field": (field_est.shift_samples, field_est.shift_std),
+        "armature": (arm_est.shift_samples, arm_est.shift_std),
+    }
     # A relative delay of a large part of a period is not what a chain of equal
     # filters does: it stands in for a lag of the winding's physics (an eddy path,
     # a late current sensor), which the effects must get to explain. A smooth
@@ -156,23 +194,26 @@ def fit_baseline(rec: Any, *, n_particles: int, iterations: int, seed: int) -> B
         field_est = estimate_field(
             rec["vf"], rec["if"], dt, n_particles=n_particles, max_iterations=iterations,
             rng=rng, intersample=_unpinned(field_est.intersample), fit_shift=False,
+            front_ends=chain_kw["field"]["front_ends"],
         )  # fmt: skip
     if abs(arm_est.shift_samples) > CHAIN_SHIFT:
         arm_est = estimate_armature(
             rec["va"], rec["ia"], rec["if"], rec["omega"], dt, n_particles=n_particles,
             max_iterations=iterations, rng=rng, compensate_input_noise=False,
             intersample=_unpinned(arm_est.intersample), fit_shift=False,
+            front_ends=chain_kw["armature"]["front_ends"],
         )  # fmt: skip
     base_full = baseline_full_vector(field_est, arm_est)
     ctx = context_from(
         rec, field_est.resistance_ohm, field_est.inductance_h, arm_est.resistance_ohm
     )
-    data = FitData(rec, base_full, ctx, chain_inputs(rec, field_est, arm_est))
+    data = FitData(rec, base_full, ctx, chain_inputs(rec, field_est, arm_est, chain))
     rf0, ra0, k0 = data.residuals(base_full, *data.whole_record)
     rms = {c: float(np.sqrt(np.nanmean(r**2))) for c, r in (("field", rf0), ("armature", ra0))}
     return Baseline(
-        field_est, arm_est, base_full, ctx, data, {"field": rf0, "armature": ra0}, k0, rms
-    )
+        field_est, arm_est, base_full, ctx, data, {"field": rf0, "armature": ra0}, k0, rms,
+        shifts,
+    )  # fmt: skip
 
 
 def _unpinned(model: str) -> str:
@@ -181,7 +222,7 @@ def _unpinned(model: str) -> str:
 
 
 def chain_inputs(
-    rec: Any, field_est: CircuitEstimate, arm_est: CircuitEstimate
+    rec: Any, field_est: CircuitEstimate, arm_est: CircuitEstimate, chain: Any = None
 ) -> dict[str, InputModel]:
     """Each winding voltage's intersample model, as the baseline's estimator chose and fitted it.
 
@@ -194,11 +235,12 @@ def chain_inputs(
     i_f, omega = kernel_array(rec["if"]), kernel_array(rec["omega"])
     field = make_problem(
         kernel_array(rec["vf"]), i_f, rec.dt, field_est.intersample, fit_shift=False,
-        shift=field_est.shift_samples,
+        shift=field_est.shift_samples, front_ends=winding_front_ends(chain, "field"),
     )  # fmt: skip
     armature = armature_problem(
         rec["va"], rec["ia"], i_f, omega, rec.dt, intersample=arm_est.intersample,
         fit_shift=False, shift=arm_est.shift_samples,
+        front_ends=winding_front_ends(chain, "armature"),
     )  # fmt: skip
     return {"field": field.inp, "armature": armature.inp}
 
@@ -518,27 +560,78 @@ def decide_verdict(
     )
     findings = tuple(_finding(k, baseline, floors, located, cands, evid) for k in ranked)
     description = _describe(verdict, findings, located.structure, located.mismatch, floors)
-    periodic = [
-        s_
-        for c, r in (
-            ("armature", baseline.residuals["armature"]),
-            ("field", baseline.residuals["field"]),
-        )
-        if (s_ := periodic_structure(rec, r, floors[c], CURRENT_CHANNEL[c])) is not None
-    ]
+    periodic = _periodic(rec, baseline.residuals, floors)
     structure = tuple(sorted(located.structure + tuple(periodic), key=lambda s_: -s_.z))
     words = [s_.description for s_ in periodic]
     strong = _strong(structure)
     mismatch = located.mismatch
-    chain: tuple[ChainFinding, ...] = ()
+    spectra = {c: voltage_spectrum(rec[v], rec.dt) for c, v in VOLTAGE_CHANNEL.items()}
+    chain = front_end_findings(rec, baseline, spectra)
+    unfiltered = {
+        c
+        for c, v in VOLTAGE_CHANNEL.items()
+        if any(f.kind == "no_anti_aliasing" and f.channel == v for f in chain)
+    }
+    if verdict != NONE:
+        change_v = effect_size_v(baseline, cands.models[verdict], cands.fits[verdict].full)
+        hidden = {c for c in unfiltered & set(change_v) if change_v[c] < spectra[c].alias_v}
+        if hidden:
+            # Without a filter, what the converter does above Nyquist folds into the samples
+            # unbounded: a motor effect smaller than that cannot be told from the chain.
+            c = sorted(hidden)[0]
+            description = (
+                f"{_describe(NONE, findings, (), (), floors)}; {verdict} would earn its "
+                f"parameters, but it changes the {c} circuit's voltage by {change_v[c]:.3g} V "
+                f"rms, less than the {spectra[c].alias_v:.3g} V that the {VOLTAGE_CHANNEL[c]} "
+                "channel's folded converter content can (no anti-aliasing filter): not told "
+                "apart from the chain"
+            )
+            verdict = NONE
+    if verdict != NONE:
+        left = unexplained_remainder(
+            rec, baseline, floors, located, cands.fits[verdict].full, strong
+        )
+        if left:
+            named = verdict
+            verdict = UNEXPLAINED
+            located_words = [s_.description for s_ in (periodic if words else strong)[:2]]
+            description = (
+                "a mismatch is located and the nearest effect in the library "
+                f"({named}) removes only part of it; what is left: "
+                + "; ".join(s_.description for s_ in left[:2])
+                + ("; located before: " + "; ".join(located_words) if located_words else "")
+            )
+            return Verdict(verdict, description, findings, structure, chain)
+    excess = {c for c, f in floors.items() if f.excess_ratio > UNEXPLAINED_EXCESS}
     if verdict == NONE and not words and (strong or mismatch):
-        chain = chain_explains(rec, baseline, floors, located, strong)
-        if chain:
+        found = chain_explains(rec, baseline, floors, located, strong)
+        if not found and not mismatch:
+            found = alias_explains(baseline, floors, strong, spectra)
+        if found:
             strong, mismatch = [], ()
-            description += "; " + "; ".join(f"{c.description} ({c.advice})" for c in chain)
-    if verdict == NONE and (
-        strong or mismatch or words or any(f.excess_ratio > 1.5 for f in floors.values())
-    ):
+            description += "; " + "; ".join(f"{c.description} ({c.advice})" for c in found)
+            chain = found + chain
+    if verdict == NONE and not words and unfiltered:
+        # A voltage sampled without an anti-aliasing filter leaves the winding's residual
+        # above the floor, in windows and in structure no larger than its folded content
+        # can cause: that is the chain's, and said so. Larger structure is not excused.
+        beyond = {
+            _circuit(s_)
+            for s_ in strong
+            if _offset_v(s_, baseline, floors) > spectra[_circuit(s_)].alias_v
+        }
+        excused = unfiltered - beyond
+        if excused & (excess | {_circuit(m) for m in mismatch} | {_circuit(s_) for s_ in strong}):
+            mismatch = tuple(m for m in mismatch if _circuit(m) not in excused)
+            strong = [s_ for s_ in strong if _circuit(s_) not in excused]
+            excess -= excused
+            description += (
+                "; the residual of the "
+                + " and ".join(sorted(excused))
+                + " circuit is above the noise floor by no more than a voltage sampled without "
+                "an anti-aliasing filter can leave it (see the chain findings)"
+            )
+    if verdict == NONE and (strong or mismatch or words or excess):
         verdict = UNEXPLAINED
         if not words:
             words = [s.description for s in (strong or structure)[:2]] or [
@@ -546,6 +639,159 @@ def decide_verdict(
             ]
         description = "a mismatch is located but no candidate removes it: " + "; ".join(words)
     return Verdict(verdict, description, findings, structure, chain)
+
+
+#: Each circuit's voltage channel.
+VOLTAGE_CHANNEL = {"field": "vf", "armature": "va"}
+#: A named effect must take a located structure's z-score below this share of the
+#: strongest one's (and below :data:`UNEXPLAINED_Z`), or what it leaves is unexplained.
+REMAINDER_SHARE = 0.25
+#: ... and must take every located structure's size (largest offset / floor rms) below this.
+REMAINDER_SIZE = 0.5
+
+
+def _periodic(
+    rec: Any, residuals: dict[str, np.ndarray], floors: dict[str, NoiseFloor]
+) -> list[ConditionStructure]:
+    """Components of each circuit's residual periodic in shaft angle (armature first)."""
+    return [
+        s_
+        for c in ("armature", "field")
+        if (s_ := periodic_structure(rec, residuals[c], floors[c], CURRENT_CHANNEL[c])) is not None
+    ]
+
+
+def _circuit(item: ConditionStructure | Mismatch) -> str:
+    """The circuit whose current channel a located structure or window is on."""
+    return "field" if item.channel == CURRENT_CHANNEL["field"] else "armature"
+
+
+def _offset_v(s_: ConditionStructure, baseline: Baseline, floors: dict[str, NoiseFloor]) -> float:
+    """A structure's largest offset as a voltage at the winding (its resistance times it)."""
+    circuit = _circuit(s_)
+    est = baseline.field if circuit == "field" else baseline.armature
+    return s_.size * math.sqrt(floors[circuit].variance_a2) * est.resistance_ohm
+
+
+def unexplained_remainder(
+    rec: Any,
+    baseline: Baseline,
+    floors: dict[str, NoiseFloor],
+    located: Located,
+    full: np.ndarray,
+    strong: Sequence[ConditionStructure],
+) -> list[ConditionStructure]:
+    """What a named effect's fit leaves of the located structure that it should have removed.
+
+    An effect earns its parameters on held-out data by removing *some* of the
+    mismatch; an effect outside the library (a back-EMF ripple in shaft
+    angle, a speed reading that falls with the load) is often partly
+    imitated by the nearest one in it. The named effect must also explain
+    what was located: its residual, located again against the same floors,
+    may keep no structure stronger than :data:`REMAINDER_SHARE` of the
+    strongest before (nor :data:`UNEXPLAINED_Z`) and of a size (largest
+    offset against the floor's rms) above :data:`REMAINDER_SIZE` and that
+    share of the largest before, no rms above
+    :data:`UNEXPLAINED_EXCESS` times the floor's that is more than half the
+    plain model's, and no component periodic
+    in shaft angle. The size is what keeps a converter's folded content out:
+    sampled at 2 kHz behind a filter at fs/4 it leaves offsets of 0.25-0.4
+    of the floor's rms that grow in z with the recording's length, not in size.
+    """
+    data = baseline.data
+    rf, ra, _ = data.residuals(full, *data.whole_record)
+    residuals = {"field": rf, "armature": ra}
+    excess = {
+        c: math.sqrt(float(np.nanmean(r**2)) / floors[c].variance_a2) for c, r in residuals.items()
+    }
+    worst = max(excess, key=lambda c: excess[c])
+    if excess[worst] > UNEXPLAINED_EXCESS and excess[worst] > floors[worst].excess_ratio / 2:
+        return [
+            ConditionStructure(
+                CURRENT_CHANNEL[worst],
+                "rms",
+                math.inf,
+                (),
+                (),
+                (),
+                f"{CURRENT_CHANNEL[worst]} residual {excess[worst]:.1f}x the noise floor "
+                f"(plain model {floors[worst].excess_ratio:.1f}x)",
+                excess[worst],
+            )  # fmt: skip
+        ]
+    _, structure = locate(rec, residuals, floors, located.conditions)
+    after = _strong(structure) + _strong(_periodic(rec, residuals, floors))
+    top_z = max((s_.z for s_ in strong), default=0.0)
+    top_size = max((s_.size for s_ in strong), default=0.0)
+    left = [
+        s_
+        for s_ in after
+        if s_.z >= max(UNEXPLAINED_Z, REMAINDER_SHARE * top_z)
+        and s_.size >= max(REMAINDER_SIZE, REMAINDER_SHARE * top_size)
+    ]
+    return sorted(left, key=lambda s_: -s_.z)
+
+
+def effect_size_v(baseline: Baseline, model: CandidateModel, full: np.ndarray) -> dict[str, float]:
+    """How much an effect's fit changes each of its circuits, as an rms voltage at the winding.
+
+    The rms difference between the plain model's residual and the effect's
+    over the whole recording, times the winding's resistance.
+    """
+    data = baseline.data
+    rf, ra, _ = data.residuals(full, *data.whole_record)
+    out = {}
+    for c, r in (("field", rf), ("armature", ra)):
+        if c in model.circuits:
+            est = baseline.field if c == "field" else baseline.armature
+            d = baseline.residuals[c] - r
+            out[c] = float(np.sqrt(np.nanmean(d**2))) * est.resistance_ohm
+    return out
+
+
+def alias_explains(
+    baseline: Baseline,
+    floors: dict[str, NoiseFloor],
+    strong: Sequence[ConditionStructure],
+    spectra: dict[str, VoltageSpectrum],
+) -> tuple[ChainFinding, ...]:
+    """``content_near_nyquist`` findings, if folding can cause every strong structure located.
+
+    A structure's largest bin offset, as a voltage at the winding, is compared
+    with the bound on the slow voltage error of the circuit's voltage channel
+    (:class:`~observer.diagnosis.chain.VoltageSpectrum`): a motor effect of
+    that size is within what the samples of this chain can tell.
+    """
+    if not strong:
+        return ()
+    by_channel: dict[str, list[ConditionStructure]] = {}
+    for s_ in strong:
+        circuit = _circuit(s_)
+        if _offset_v(s_, baseline, floors) > spectra[circuit].alias_v:
+            return ()
+        by_channel.setdefault(circuit, []).append(s_)
+    out = []
+    for circuit, items in by_channel.items():
+        words = "; ".join(s_.description.split(" (z =")[0] for s_ in items[:2])
+        offset = max(_offset_v(s_, baseline, floors) for s_ in items)
+        out.append(alias_finding(VOLTAGE_CHANNEL[circuit], spectra[circuit], offset, words))
+    return tuple(out)
+
+
+def front_end_findings(
+    rec: Any, baseline: Baseline, spectra: dict[str, VoltageSpectrum]
+) -> tuple[ChainFinding, ...]:
+    """What the front end shows whatever the motor does: a missing filter, skewed channels."""
+    out = []
+    for circuit, voltage in VOLTAGE_CHANNEL.items():
+        shift, std = baseline.shifts.get(circuit, (0.0, 0.0))
+        for found in (
+            no_filter_finding(voltage, spectra[circuit]),
+            skew_finding(voltage, CURRENT_CHANNEL[circuit], shift, std, rec.dt),
+        ):
+            if found is not None:
+                out.append(found)
+    return tuple(out)
 
 
 def _strong(structure: Sequence[ConditionStructure]) -> list[ConditionStructure]:
@@ -699,6 +945,7 @@ def diagnose(
     compensate_input_noise: bool = True,
     progress: bool = False,
     path: str | None = None,
+    chain: Any = None,
 ) -> Diagnosis:
     """Diagnose what the plain model misses in a recording.
 
@@ -727,6 +974,10 @@ def diagnose(
         effect that also delays the current (``sampling_skew``) is confounded.
     progress : bool
         Show a progress bar on stderr.
+    chain : observer.config.ChainConfig, optional
+        The measurement chain as far as it is known (the ``[chain]`` of a
+        dcobserver config): the baseline and every extension use its
+        intersample model and front ends; unknown parts are decided from the data.
     """
     rec.require("va", "ia", "vf", "if", "omega", path=path, purpose="a diagnosis")
     names = list(LIBRARY) if effects is None else list(effects)
@@ -734,8 +985,9 @@ def diagnose(
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; expected some of {list(LIBRARY)}")
     baseline = fit_baseline(
-        rec, n_particles=baseline_particles, iterations=baseline_iterations, seed=seed
-    )
+        rec, n_particles=baseline_particles, iterations=baseline_iterations, seed=seed,
+        chain=chain,
+    )  # fmt: skip
     floors = noise_floors(baseline)
     located = locate_mismatch(rec, baseline, floors)
     segments = split_segments(baseline.data.n, rec.dt, max_fit_samples)

@@ -210,9 +210,10 @@ class ArmatureReaction(Effect):
     circuits = ("armature",)
 
     def parameters(self, ctx: DataContext) -> tuple[Parameter, ...]:
-        return (
-            Parameter("reaction_per_a", "1/A", -0.05 / ctx.ia_peak_a, 0.3 / ctx.ia_peak_a, 0.0),
-        )
+        # Armature reaction demagnetises: the flux only falls with the current. A flux
+        # that seems to rise with it is something else (a speed reading that falls with
+        # the load makes the EMF look exactly so), which this effect must not take.
+        return (Parameter("reaction_per_a", "1/A", 0.0, 0.3 / ctx.ia_peak_a, 0.0),)
 
     def magnitude(self, values: dict[str, float], ctx: DataContext) -> dict[str, float]:
         return {"flux_loss_at_peak_ia": values["reaction_per_a"] * ctx.ia_peak_a}

@@ -114,6 +114,12 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
     assert len(res.stderr.strip().splitlines()) == 1
     res = _cli("diagnose", str(field_only), "--effects", "nonsense")
     assert res.returncode == 2 and "nonsense" in res.stderr
+    # The chain comes from a dcobserver config, read strictly.
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[chain]\nbogus = 1\n")
+    res = _cli("diagnose", str(field_only), "--config", str(bad))
+    assert res.returncode == 2 and "chain.bogus" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1
 
 
 def test_too_short_a_recording_is_refused_in_one_line(tmp_path):

@@ -1,0 +1,214 @@
+"""What the measurement chain, not the motor, leaves in a recording: front-end findings.
+
+A converter's voltage is not band-limited: its harmonics run far beyond the
+Nyquist frequency, and what the anti-aliasing filter lets through above it
+folds back into the samples. A band-limited reconstruction of the voltage
+between samples (the estimator's ``smooth`` model) is then wrong by the folded
+part, and the part folded onto zero frequency (harmonics at multiples of the
+sample rate) is a slow voltage error that follows the converter's firing angle
+and so the operating point: structure the motor does not cause. It cannot be
+seen in the samples (that is what aliasing means), but it can be bounded from
+what *can* be seen: the voltage's line content just below the Nyquist
+frequency and how fast it falls there, extrapolated to the sample rate
+(:func:`voltage_spectrum`).
+
+Three findings come from the front end alone, whatever the motor does:
+
+``no_anti_aliasing``
+    The voltage's line content does not fall towards the Nyquist frequency
+    (no filter, or one far above it).
+``channel_skew``
+    The estimator's fitted relative delay between the voltage and current
+    channels is significant: different filters on the two channels, or a
+    multiplexed ADC sampling them one after another.
+``content_near_nyquist``
+    Structure located in the residual is no larger than the folded voltage
+    could cause (decided in :mod:`observer.diagnosis.diagnose`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from observer.diagnosis.results import ChainFinding
+
+#: Line content in the top eighth-band below Nyquist at least this share of the one below
+#: it: the spectrum does not fall towards Nyquist (a filter of order n at fs/4 gives about
+#: 0.7^(n+1) here with a converter's 1/h harmonics: 0.35 for a 2nd-order one).
+FLAT_RATIO = 0.65
+#: ... and at least this share of the voltage's standard deviation (not the noise of a
+#: drive that changes its held voltage every sample).
+FLAT_MIN_SHARE = 0.01
+#: A fitted relative delay (sample periods) this large, and ...
+SKEW_MIN_SAMPLES = 0.02
+#: ... this many of its standard deviations, is a chain finding.
+SKEW_SIGMAS = 4.0
+
+#: Band edges (fractions of the sample rate) of the line content compared.
+_MID = (0.25, 0.375)
+_TOP = (0.375, 0.5)
+
+NO_FILTER_ADVICE = (
+    "add an anti-aliasing filter at or below fs/4 to the {ch} channel, or measure it averaged "
+    "over each period, or sample faster, and configure it in [chain.{ch}]"
+)
+SKEW_ADVICE = (
+    "configure the front ends in [chain] (filter of each channel, delay_us of a multiplexed ADC) "
+    "or filter the voltage and current channels alike"
+)
+ALIAS_ADVICE = (
+    "sample faster (at least 5 kHz behind a 6-pulse bridge), or lower the voltage channels' "
+    "anti-aliasing cutoff, or measure the voltages averaged over each period; configure the "
+    "converter and chain in [chain]"
+)
+
+
+@dataclass(frozen=True)
+class VoltageSpectrum:
+    """A voltage channel's line content near the Nyquist frequency.
+
+    Attributes
+    ----------
+    noise_v : float
+        RMS (V) of the flat floor (noise) over the band from 0 to Nyquist.
+    mid_v, top_v : float
+        RMS (V) of the content above that floor in ``[fs/4, 3fs/8)`` and ``[3fs/8, fs/2)``.
+    alias_v : float
+        Line amplitude (V) extrapolated to the sample rate: a bound on the slow
+        voltage error that folding can put into the samples.
+    std_v : float
+        Standard deviation of the voltage (V).
+    """
+
+    noise_v: float
+    mid_v: float
+    top_v: float
+    alias_v: float
+    std_v: float
+
+    @property
+    def ratio(self) -> float:
+        """Top band against the band below it: how far the content falls towards Nyquist."""
+        return self.top_v / self.mid_v if self.mid_v > 0 else 0.0
+
+    @property
+    def flat(self) -> bool:
+        """Whether the content does not fall towards Nyquist (no anti-aliasing filter)."""
+        return self.ratio >= FLAT_RATIO and self.top_v >= FLAT_MIN_SHARE * self.std_v
+
+
+def _welch(v: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """One-sided power spectral density (V^2/Hz) by Welch's method, Hann windows, 50 % overlap."""
+    x = np.asarray(v, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    m = int(2 ** math.floor(math.log2(max(x.size // 4, 64))))
+    m = min(m, 2048)
+    window = np.hanning(m)
+    step = m // 2
+    starts = range(0, x.size - m + 1, step)
+    t = np.arange(m) - (m - 1) / 2
+    acc = np.zeros(m // 2 + 1)
+    count = 0
+    for s in starts:
+        seg = x[s : s + m]
+        slope = float(t @ seg) / float(t @ t)
+        seg = seg - seg.mean() - slope * t
+        acc += np.abs(np.fft.rfft(seg * window)) ** 2
+        count += 1
+    psd = acc / max(count, 1) * dt / float(window @ window)
+    psd[1:-1] *= 2.0
+    return np.fft.rfftfreq(m, dt), psd
+
+
+def voltage_spectrum(v: np.ndarray, dt: float) -> VoltageSpectrum:
+    """The line content of voltage ``v`` near Nyquist and what can fold onto low frequencies.
+
+    The floor is the smallest of the median densities of the 14 bands of width
+    ``fs/32`` from ``fs/16`` to Nyquist (a converter's lines are sparse, so a
+    band's median is its floor); a band's content is its power above that
+    floor. The content of ``[3fs/8, fs/2)`` falls from that of
+    ``[fs/4, 3fs/8)`` by a ratio ``q``; continued at the same rate, a line at
+    the sample rate has ``top * q^k`` with ``k = ln(fs/f_top)/ln(f_top/f_mid)``
+    (band centres): the folded error is bounded by that.
+    """
+    f, psd = _welch(v, dt)
+    fs = 1.0 / dt
+    df = float(f[1] - f[0])
+    edges = np.linspace(fs / 16, fs / 2, 15)
+    medians = []
+    for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        band = (f >= lo) & (f < hi)
+        medians.append(float(np.median(psd[band])) if band.any() else math.inf)
+    floor = min(medians)
+
+    def content(lo_share: float, hi_share: float) -> float:
+        band = (f >= lo_share * fs) & (f < hi_share * fs)
+        return math.sqrt(max(float(np.sum(psd[band] - floor)) * df, 0.0))
+
+    mid, top = content(*_MID), content(*_TOP)
+    alias = 0.0
+    if mid > 0 and top > 0:
+        f_mid, f_top = sum(_MID) / 2, sum(_TOP) / 2
+        k = math.log(1.0 / f_top) / math.log(f_top / f_mid)
+        alias = top * min(top / mid, 1.0) ** k
+    x = np.asarray(v, dtype=np.float64)
+    return VoltageSpectrum(
+        noise_v=math.sqrt(floor * fs / 2),
+        mid_v=mid,
+        top_v=top,
+        alias_v=alias,
+        std_v=float(np.nanstd(x)),
+    )
+
+
+def no_filter_finding(channel: str, spectrum: VoltageSpectrum) -> ChainFinding | None:
+    """``no_anti_aliasing`` if the voltage's content does not fall towards Nyquist."""
+    if not spectrum.flat:
+        return None
+    return ChainFinding(
+        channel,
+        "no_anti_aliasing",
+        f"measurement chain: {channel} has as much converter content just below the Nyquist "
+        f"frequency as a band lower ({spectrum.top_v:.3g} V against {spectrum.mid_v:.3g} V): "
+        "it was sampled without an anti-aliasing filter, or with one too weak or too high for this "
+        "sample rate, so what the "
+        "converter does between samples is not in the samples",
+        NO_FILTER_ADVICE.format(ch=channel),
+    )
+
+
+def skew_finding(
+    voltage: str, current: str, shift_samples: float, shift_std: float, dt: float
+) -> ChainFinding | None:
+    """``channel_skew`` if the fitted relative delay of ``voltage`` behind ``current`` is real."""
+    size = abs(shift_samples)
+    if size < SKEW_MIN_SAMPLES or size < SKEW_SIGMAS * shift_std:
+        return None
+    late, early = (voltage, current) if shift_samples > 0 else (current, voltage)
+    return ChainFinding(
+        voltage,
+        "channel_skew",
+        f"measurement chain: {late} reads {1e6 * size * dt:.3g} us ({size:.3f} sample periods, "
+        f"+-{shift_std:.2g}) behind {early} (fitted by the estimator): the two channels have "
+        "different anti-aliasing filters or are sampled one after another",
+        SKEW_ADVICE,
+    )
+
+
+def alias_finding(
+    channel: str, spectrum: VoltageSpectrum, offset_v: float, words: str
+) -> ChainFinding:
+    """``content_near_nyquist``: located structure no larger than folding can cause."""
+    return ChainFinding(
+        channel,
+        "content_near_nyquist",
+        f"measurement chain: {channel} carries converter content up to the Nyquist frequency "
+        f"({spectrum.top_v:.3g} V in the top eighth-band), whose folded part can shift the "
+        f"voltage by up to {spectrum.alias_v:.3g} V with the firing angle; the structure "
+        f"located ({words}, {offset_v:.3g} V at the winding) is no larger: it is the sampling "
+        "of the converter's voltage, not the motor",
+        ALIAS_ADVICE,
+    )
