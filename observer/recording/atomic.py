@@ -30,6 +30,7 @@ import contextlib
 import io
 import os
 import secrets
+import signal
 from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
@@ -70,6 +71,22 @@ def final_path(path: PathArg) -> Path:
     if not is_temporary(p):
         return p
     return p.with_name(p.name[1:].rsplit(TEMP_MARKER, 1)[0])
+
+
+@contextlib.contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Hold SIGINT and SIGTERM for the block (where the platform allows): their handlers run
+    right after it, at a point where the caller's state is consistent."""
+    sigs = {signal.SIGINT, signal.SIGTERM}
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    except (AttributeError, OSError, ValueError):  # no pthread_sigmask here
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _fsync_folder(folder: Path) -> None:
@@ -123,14 +140,18 @@ class AtomicFile:
         self.path = Path(path)
         self.overwrite = overwrite
         self.temp_path = temporary_path(self.path)
-        fd = os.open(self.temp_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        try:
-            self.stream: IO[bytes] = os.fdopen(fd, "wb")
-        except BaseException:
-            os.close(fd)
-            self._unlink_temp()
-            raise
-        self._done = False
+        self._done = True  # nothing to clean up until the file exists
+        # Ctrl-C or SIGTERM between creating the file and recording that it exists would leave
+        # it behind: they are deferred until this object can discard it.
+        with _signals_deferred():
+            fd = os.open(self.temp_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            try:
+                self.stream: IO[bytes] = os.fdopen(fd, "wb")
+            except BaseException:
+                os.close(fd)
+                self._unlink_temp()
+                raise
+            self._done = False
 
     @property
     def closed(self) -> bool:
