@@ -23,6 +23,8 @@ from observer.estimation.intersample import (
     InputModel,
     Segments,
     Switching,
+    alias_bias_bound,
+    alias_factor,
     build_input,
     find_switching,
     rail_samples,
@@ -55,6 +57,11 @@ class WindingProblem:
         ``K`` held at this value (armature without speed); None: fitted.
     fit_shift : bool
         Whether the relative delay is a parameter (``smooth`` and ``switched`` models).
+    alias_v : tuple of float
+        Per piece of the window (:data:`ALIAS_PIECES` equal ones), a bound on the error of the
+        piece's mean voltage that jumps seen through the front end leave in the samples (V;
+        :func:`~observer.estimation.intersample.alias_bias_bound`). It changes where the
+        converter's firing angle does, so each piece errs on its own.
     """
 
     voltage: np.ndarray
@@ -66,6 +73,7 @@ class WindingProblem:
     fit_shift: bool = False
     fit_lag: bool = False
     lag: float = 0.0
+    alias_v: tuple[float, ...] = ()
     _mu_emf: np.ndarray | None = field(default=None, repr=False)
     _mu_cache: dict[tuple[float, float], np.ndarray] = field(default_factory=dict, repr=False)
 
@@ -122,7 +130,7 @@ class WindingProblem:
         )
         return WindingProblem(
             self.voltage, self.current, self.dt, inp, self.emf, self.emf_constant,
-            self.fit_shift, self.fit_lag, lag_,
+            self.fit_shift, self.fit_lag, lag_, self.alias_v,
         )  # fmt: skip
 
     # ------------------------------------------------------------- the swarm
@@ -205,17 +213,29 @@ class WindingProblem:
         )  # fmt: skip
         return out, initial
 
-    def offset_column(self, theta: np.ndarray) -> np.ndarray:
+    def offset_column(self, theta: np.ndarray, where: slice = slice(None)) -> np.ndarray:
         """d(residual)/d(voltage offset) at ``theta``: the residual's change per volt added.
 
         The residual is affine in the voltage (initial currents projected out
         again), so one more evaluation with every interval's mean raised by
-        1 V gives it exactly.
+        1 V gives it exactly. ``where``: only the intervals in this slice.
         """
         resistance, inductance, k, shift = self.unpack(theta)
-        mu = self.mu(shift, self.lag_of(theta))
-        raised, _ = self._simulated(resistance, inductance, k, mu + np.array([1.0, 0.0, 0.0]))
+        mu = self.mu(shift, self.lag_of(theta)).copy()
+        mu[where, 0] += 1.0
+        raised, _ = self._simulated(resistance, inductance, k, mu)
         return raised - self.residual(theta)
+
+    def alias_pieces(self) -> list[tuple[slice, float]]:
+        """The window's pieces (slices of intervals) and each one's :attr:`alias_v` bound."""
+        n = self.inp.mu.shape[0]
+        bounds = self.alias_v
+        edges = np.linspace(0, n, len(bounds) + 1).astype(int)
+        return [
+            (slice(int(a), int(b)), float(v))
+            for a, b, v in zip(edges[:-1], edges[1:], bounds, strict=True)
+            if v > 0.0
+        ]
 
     def best_k(self, resistance: float, inductance: float, shift: float) -> float:
         """``K`` solved in closed form at ``(R, L, shift)`` (the held value if held)."""
@@ -246,6 +266,10 @@ class WindingProblem:
         return lower, upper
 
 
+#: Pieces of a window whose voltage errors from aliasing are bounded separately.
+ALIAS_PIECES = 4
+
+
 def make_problem(
     voltage: np.ndarray,
     current: np.ndarray,
@@ -273,6 +297,7 @@ def make_problem(
     (:func:`~observer.estimation.frontend.apply_relative`) and the window's
     edges, which that spoils, leave the segments.
     """
+    raw_voltage = voltage
     valid = ~(rail_samples(voltage) | rail_samples(current))
     for x in also_checked:
         valid &= ~rail_samples(x)
@@ -301,6 +326,23 @@ def make_problem(
             for k in np.flatnonzero(sw.transitions):
                 widened[k : k + settle + 1] = True
             switching = Switching(sw.jumps, sw.clean_share, sw.noise_v, widened)
+    alias_v: tuple[float, ...] = ()
+    if model == "smooth":
+        # Jumps between samples that a smooth reconstruction spreads over their intervals
+        # (a switched model leaves them out of its segments; a held voltage has none).
+        sw = switching if isinstance(switching, Switching) else find_switching(raw_voltage)
+        fe_v = front_ends[0] if front_ends is not None else None
+        factor = alias_factor(
+            None if fe_v is None else (lambda f: fe_v.response(f, 1.0 / dt)), 1.0 / dt
+        )
+        t = sw.transitions if sw.transitions is not None else sw.jumps
+        edges = np.linspace(0, t.shape[0], ALIAS_PIECES + 1).astype(int)
+        alias_v = tuple(
+            alias_bias_bound(raw_voltage[a : b + 1], Switching(t[a:b], 0.0, 0.0, t[a:b]), factor)
+            for a, b in zip(edges[:-1], edges[1:], strict=True)
+        )
     inp = build_input(voltage, model, shift=shift, switching=switching, valid=valid)  # type: ignore[arg-type]
-    problem = WindingProblem(voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag)
+    problem = WindingProblem(
+        voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag, alias_v
+    )
     return problem.with_shift(shift, lag) if lag else problem

@@ -366,16 +366,33 @@ def std_stage(
     jac = fit.jacobian
     measured = problem.inp.model != "hold"
     offset = np.zeros(3)
-    if problem.fits_k and measured:
+    if measured:
         column = problem.offset_column(theta)
-        # The unknown offset as a free nuisance parameter: a window whose
-        # current and speed barely vary cannot tell R*ia from K*if*omega.
-        jac = np.column_stack([jac, column])
-        # And the bias an offset of a plausible size leaves where it can be
-        # told apart (the estimate does not fit it).
-        sensitivity = np.linalg.lstsq(fit.jacobian, column, rcond=None)[0]
-        volts = OFFSET_SHARE * float(np.mean(np.abs(problem.voltage)))
-        offset = np.abs(sensitivity[:3]) * volts
+        if problem.fits_k:
+            # The unknown offset as a free nuisance parameter: a window whose
+            # current and speed barely vary cannot tell R*ia from K*if*omega.
+            jac = np.column_stack([jac, column])
+        # And the bias a constant voltage error of a plausible size leaves where
+        # it can be told apart (the estimate does not fit it): the sensor's
+        # offset, and the error of the samples' mean that jumps seen through
+        # the front end leave (aliasing; locked to the samples on a steady
+        # bridge, so it does not average out over the window).
+        k = 3 if problem.fits_k else 2
+
+        def bias(col: np.ndarray, volts: float) -> np.ndarray:
+            sensitivity = np.linalg.lstsq(fit.jacobian, col, rcond=None)[0]
+            return np.abs(sensitivity[:k]) * volts
+
+        offset[:k] = bias(column, OFFSET_SHARE * float(np.mean(np.abs(problem.voltage))))
+        pieces = problem.alias_pieces()
+        if pieces:
+            # The same error over the whole window (a steady bridge) or one per piece
+            # (the firing angle moves): whichever moves the parameter more.
+            steady = bias(column, float(np.sqrt(np.mean(np.square(problem.alias_v)))))
+            each = np.sqrt(
+                sum(bias(problem.offset_column(theta, where), v) ** 2 for where, v in pieces)
+            )
+            offset[:k] = np.hypot(offset[:k], np.maximum(steady, each))
         offset[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
     std = crlb_std(jac, fit.point.residual, tau_samples)
     point = eiv.point
