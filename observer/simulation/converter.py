@@ -11,8 +11,8 @@ at 1.2x (armature) or 1.6x (field) the rated voltage. Equations: ``docs/drive_ch
 Presets (:data:`PRESETS`): ``ideal`` is today's simulator (voltages held per sample, no front
 end: ``None``), ``realistic`` what users have: a dual 6-pulse thyristor bridge on 50 Hz mains,
 a single-phase field bridge, a 2nd-order Butterworth anti-aliasing filter at fs/4 on every
-channel and a 12-bit ADC. :data:`DEFAULT_PRESET` is what ``dcobserver simulate``, the fake drives
-and the demo recording use.
+channel and a 12-bit ADC. :data:`DEFAULT_PRESET` (``realistic``) is what ``dcobserver simulate``,
+the fake drives and the demo recording use.
 """
 
 from __future__ import annotations
@@ -151,7 +151,7 @@ PRESETS: dict[str, DriveSpec | None] = {
 }
 
 #: The preset of ``dcobserver simulate``, ``dcobserver fake-drive`` and the demo recording.
-DEFAULT_PRESET = "ideal"
+DEFAULT_PRESET = "realistic"
 
 
 @dataclass(frozen=True)

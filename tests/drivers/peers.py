@@ -15,6 +15,7 @@ import numpy as np
 
 from drivers.base import CHANNELS, SampleBlock, Source
 from observer.recording import Recording
+from observer.simulation.converter import DEFAULT_PRESET, PRESETS
 from observer.simulation.drive_stream import DriveStream
 
 REPO = Path(__file__).resolve().parents[2]
@@ -131,8 +132,10 @@ def bridged_recording(blocks: list[SampleBlock], rate_hz: float) -> tuple[Record
 
 
 def expected_stream(rate_hz: float, n: int, seed: int) -> np.ndarray:
-    """The first ``n`` samples the fake drive with this rate and seed serves (SI, unquantised)."""
-    return DriveStream(sample_rate_hz=rate_hz, seed=seed).take(n)
+    """The first ``n`` samples the fake drive with this rate and seed serves (SI, unquantised):
+    its default drive, the :data:`~observer.simulation.converter.DEFAULT_PRESET`."""
+    drive = PRESETS[DEFAULT_PRESET]
+    return DriveStream(sample_rate_hz=rate_hz, seed=seed, drive=drive).take(n)
 
 
 def locate(first: np.ndarray, expected: np.ndarray, tol: np.ndarray) -> int:

@@ -43,7 +43,9 @@ def cut_log(tmp_path_factory) -> Path:
     """A simulated MCAP recording cut at 70 %, as a crash leaves a log."""
     d = tmp_path_factory.mktemp("recover")
     full = d / "full.mcap"
-    assert run("simulate", str(full), "--duration", "10", cwd=d).returncode == 0
+    assert (
+        run("simulate", str(full), "--duration", "10", "--preset", "ideal", cwd=d).returncode == 0
+    )
     data = full.read_bytes()
     cut = d / "cut.mcap"
     cut.write_bytes(data[: int(len(data) * 0.7)])
@@ -109,7 +111,7 @@ def test_ctrl_c_during_simulate_leaves_no_partial_file(tmp_path: Path):
         out = tmp_path / f"big-{sig.name}.csv"
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
         proc = subprocess.Popen(
-            _cmd("simulate", str(out), "--duration", "120", "--rate", "10000"),
+            _cmd("simulate", str(out), "--duration", "120", "--rate", "10000", "--preset", "ideal"),
             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         try:

@@ -36,7 +36,16 @@ def brush_run(tmp_path_factory):
     d = tmp_path_factory.mktemp("diag")
     rec = d / "brush.csv"
     out = _cli(
-        "simulate", str(rec), "--duration", "10", "--seed", "1", "--effect", "brush_drop=0.3"
+        "simulate",
+        str(rec),
+        "--duration",
+        "10",
+        "--seed",
+        "1",
+        "--effect",
+        "brush_drop=0.3",
+        "--preset",
+        "ideal",
     )
     assert out.returncode == 0, out.stderr
     res = _cli(
