@@ -1,21 +1,23 @@
 """Accuracy of the whole-recording estimator on converter-fed recordings (a benchmark, not a test).
 
-For every sample rate, converter and seed: simulate a healthy motor (P-12 by default) for 30 s
-behind a real drive and a realistic measurement chain (2nd-order Butterworth anti-aliasing filter
-at fs/4 and a 12-bit ADC on every channel, 0.2 % sensor noise: the ``realistic`` preset's
-chain), estimate both windings with the API ``dcobserver estimate`` uses
-(:func:`observer.estimation.estimate_recording`), giving it the chain the recording was made
-through (:meth:`observer.simulation.chain.MeasurementChain.to_config`, the ``[chain]`` a user
-would configure), and compare with the truth. The table gives, per rate, converter and
-parameter, the median and the largest |error| in percent, the median |error / std| (an
-honest std gives about 0.67) and in how many recordings the estimator said its model does not
-describe the circuit (``describes_window`` false: the values are then not to be used).
+For every motor, front end, sample rate, converter and seed: simulate a healthy motor for 30 s
+behind a real drive and a measurement chain (a 12-bit ADC and 0.2 % sensor noise on every
+channel, the front end's anti-aliasing filters: ``--front-ends``, :data:`FRONT_ENDS`; by
+default the ``realistic`` preset's 2nd-order Butterworth at fs/4), estimate both windings with
+the API ``dcobserver estimate`` uses (:func:`observer.estimation.estimate_recording`), giving
+it the chain the recording was made through (:meth:`~observer.simulation.chain.MeasurementChain.
+to_config`, the ``[chain]`` a user would configure) or, for the ``-untold`` front ends, nothing,
+and compare with the truth. The table gives, per case and parameter, the median and the largest
+|error| in percent, the median |error / std| (an honest std gives about 0.67) and in how many
+recordings the estimator said its model does not describe the circuit (``describes_window``
+false: the values are then not to be used).
 
 Drives: ``thyristor`` is the dual 6-pulse bridge on 50 Hz with the single-phase field bridge
 (the ``realistic`` preset), ``chopper`` the 4-quadrant H-bridge at 2 kHz with a field chopper.
 
     python -m bench.accuracy_rates --seeds 20 --out bench/accuracy_rates.jsonl   # the full run
     python -m bench.accuracy_rates --seeds 2                                     # a smoke run
+    python -m bench.accuracy_rates --front-ends none,mixed,mixed-untold --motors p12,industrial-440v
 
 Results are appended to ``--out`` (JSON lines) as they come; a rerun skips the cases already
 there, so a long run can be stopped and resumed.
@@ -48,6 +50,30 @@ PARAMETERS: dict[str, tuple[str, str, str]] = {
 }
 
 
+#: Front end -> (filter per channel, whether the estimator is told the chain). ``va``/``vf``
+#: take the first filter, the currents and the speed the second.
+FRONT_ENDS: dict[str, tuple[str, str, bool]] = {
+    "butter2": ("butter2@fs/4", "butter2@fs/4", True),
+    "butter2-untold": ("butter2@fs/4", "butter2@fs/4", False),
+    "none": ("none", "none", True),
+    "mixed": ("rc1@fs/4", "butter2@fs/4", True),
+    "mixed-untold": ("rc1@fs/4", "butter2@fs/4", False),
+}
+
+
+def front_end_drive(drive: Any, front_end: str) -> Any:
+    """``drive`` with front end ``front_end`` (:data:`FRONT_ENDS`) on its channels."""
+    from observer.config import parse_filter
+    from observer.simulation.chain import apply_per_channel
+
+    voltage, current = FRONT_ENDS[front_end][:2]
+    changes = {
+        ch: parse_filter(voltage if ch in ("va", "vf") else current)
+        for ch in ("va", "ia", "vf", "if", "omega")
+    }
+    return drive.replace(chain=apply_per_channel(drive.chain, changes))
+
+
 def drive_spec(name: str) -> Any:
     """The :class:`~observer.simulation.converter.DriveSpec` of drive ``name``: its converters
     behind the ``realistic`` preset's measurement chain."""
@@ -66,14 +92,16 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     from observer.simulation.simulate import simulate
 
     motor = MOTORS[job["motor"]]
-    drive = drive_spec(job["drive"])
+    front_end = job.get("front_end", "butter2")
+    drive = front_end_drive(drive_spec(job["drive"]), front_end)
     t0 = time.perf_counter()
     rec = simulate(
         motor, duration_s=job["duration"], sample_rate_hz=job["rate"], noise=job["noise"],
         seed=job["seed"], drive=drive, drive_name=job["drive"],
     )  # fmt: skip
     t1 = time.perf_counter()
-    results = estimate_recording(rec, chain=drive.chain.to_config())
+    told = FRONT_ENDS[front_end][2]
+    results = estimate_recording(rec, chain=drive.chain.to_config() if told else None)
     t2 = time.perf_counter()
     out = dict(job)
     out["simulate_s"], out["estimate_s"] = t1 - t0, t2 - t1
@@ -96,13 +124,16 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
 def jobs(args: argparse.Namespace) -> list[dict[str, Any]]:
     return [
         {
-            "motor": args.motor,
+            "motor": motor,
             "rate": rate,
             "drive": drive,
+            "front_end": front_end,
             "seed": seed,
             "duration": args.duration,
             "noise": args.noise,
         }  # fmt: skip
+        for motor in args.motors
+        for front_end in args.front_ends
         for rate in args.rates
         for drive in args.drives
         for seed in range(args.seeds)
@@ -110,26 +141,32 @@ def jobs(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 
 def _key(job: dict[str, Any]) -> tuple[Any, ...]:
-    return (job["motor"], job["rate"], job["drive"], job["seed"], job["duration"], job["noise"])
+    return (
+        job["motor"], job.get("front_end", "butter2"), job["rate"], job["drive"], job["seed"],
+        job["duration"], job["noise"],
+    )  # fmt: skip
 
 
 def table(rows: list[dict[str, Any]]) -> str:
     """Markdown: per rate, drive and parameter, median and max |error| % and median |z|."""
     lines = [
-        "| rate | drive | param | seeds | median abs error | max abs error "
+        "| motor | front end | rate | drive | param | seeds | median abs error | max abs error "
         "| median abs(error/std) | not described |",
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    cases = sorted({(r["rate"], r["drive"]) for r in rows}, key=lambda c: (c[0], c[1]))
-    for rate, drive in cases:
-        cell = [r for r in rows if (r["rate"], r["drive"]) == (rate, drive)]
+
+    def case(r: dict[str, Any]) -> tuple[Any, ...]:
+        return (r["motor"], r.get("front_end", "butter2"), r["rate"], r["drive"])
+
+    for motor, front_end, rate, drive in sorted({case(r) for r in rows}):
+        cell = [r for r in rows if case(r) == (motor, front_end, rate, drive)]
         for name in PARAMETERS:
             errors = [abs(r[name]["error_pct"]) for r in cell]
             z = [abs(r[name]["z"]) for r in cell]
             circuit = PARAMETERS[name][0]
             held = sum(not r[f"{circuit}_describes"] for r in cell)
             lines.append(
-                f"| {rate / 1000:g} kHz | {drive} | {name} | {len(cell)} | "
+                f"| {motor} | {front_end} | {rate / 1000:g} kHz | {drive} | {name} | {len(cell)} | "
                 f"{statistics.median(errors):.2f} % | {max(errors):.2f} % | "
                 f"{statistics.median(z):.2f} | {held} |"
             )
@@ -152,7 +189,19 @@ def main(argv: list[str] | None = None) -> int:
         "--drives", type=lambda s: s.split(","), default=",".join(DRIVES), metavar="NAME,...",
         help=f"drives: {', '.join(DRIVES)}",
     )  # fmt: skip
-    parser.add_argument("--motor", choices=sorted(MOTORS), default="p12", help="motor")
+    parser.add_argument(
+        "--motors",
+        type=lambda s: s.split(","),
+        default="p12",
+        metavar="NAME,...",
+        help=f"motors: {', '.join(sorted(MOTORS))}",
+    )
+    parser.add_argument(
+        "--front-ends", type=lambda s: s.split(","), default="butter2", metavar="NAME,...",
+        help="front ends (voltage / current filters, told to the estimator or not): " + "; ".join(
+            f"{k}: {v} / {i}{'' if t else ', untold'}" for k, (v, i, t) in FRONT_ENDS.items()
+        ),
+    )  # fmt: skip
     parser.add_argument("--duration", type=float, default=30.0, metavar="S", help="length (s)")
     parser.add_argument("--noise", type=float, default=0.002, metavar="FRACTION",
                         help="sensor noise, fraction of each channel's rated value")  # fmt: skip
@@ -166,8 +215,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     unknown = [d for d in args.drives if d not in DRIVES]
+    unknown += [f for f in args.front_ends if f not in FRONT_ENDS]
+    unknown += [m for m in args.motors if m not in MOTORS]
     if unknown or args.seeds < 1 or args.workers < 1 or not all(r > 0 for r in args.rates):
-        parser.error(f"--drives from {', '.join(DRIVES)}; --seeds, --workers, --rates > 0")
+        parser.error(
+            f"--drives from {', '.join(DRIVES)}, --front-ends from {', '.join(FRONT_ENDS)}, "
+            f"--motors from {', '.join(sorted(MOTORS))}; --seeds, --workers, --rates > 0"
+        )
 
     from tqdm import tqdm
 
@@ -200,8 +254,8 @@ def main(argv: list[str] | None = None) -> int:
                 pool.terminate()
                 pool.join()
     text = (
-        f"{args.motor}, {args.duration:g} s per recording, noise {args.noise:g} of rated, "
-        "butter2@fs/4 and 12-bit ADC on every channel, the estimator given that chain; "
+        f"{args.duration:g} s per recording, noise {args.noise:g} of rated, 12-bit ADC on "
+        "every channel, front ends as named (--help); "
         f"{time.perf_counter() - started:.0f} s for {len(todo)} new cases on "
         f"{machine}\n\n{table(rows)}"
     )

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import pytest
 
-from bench.accuracy_rates import PARAMETERS, drive_spec, jobs, main, table
+from bench.accuracy_rates import PARAMETERS, drive_spec, front_end_drive, jobs, main, table
 
 
 def _row(rate: float, drive: str, seed: int, error: float, describes: bool) -> dict:
-    row = {"rate": rate, "drive": drive, "seed": seed, "field_describes": describes,
-           "armature_describes": True}  # fmt: skip
+    row = {"motor": "p12", "rate": rate, "drive": drive, "seed": seed,
+           "field_describes": describes, "armature_describes": True}  # fmt: skip
     for name in PARAMETERS:
         row[name] = {"error_pct": error * (1 if seed else -1), "z": 2.0 * error}
     return row
@@ -32,16 +32,41 @@ def test_the_table_has_a_row_per_rate_drive_and_parameter():
     lines = table(rows).splitlines()
     assert len(lines) == 2 + 2 * len(PARAMETERS)
     cells = [c.strip() for c in lines[2].strip("|").split("|")]
-    assert cells == ["2 kHz", "chopper", "Rf", "3", "2.00 %", "3.00 %", "4.00", "1"]
-    assert lines[-1].startswith("| 5 kHz | thyristor | K | 1 | 0.50 %")
+    assert cells == [
+        "p12",
+        "butter2",
+        "2 kHz",
+        "chopper",
+        "Rf",
+        "3",
+        "2.00 %",
+        "3.00 %",
+        "4.00",
+        "1",
+    ]
+    assert lines[-1].startswith("| p12 | butter2 | 5 kHz | thyristor | K | 1 | 0.50 %")
+
+
+def test_front_ends_put_their_filters_on_the_channels():
+    mixed = front_end_drive(drive_spec("thyristor"), "mixed")
+    filters = {name: ch.filter_text() for name, ch in mixed.chain.items()}
+    assert filters == {"va": "rc1@fs/4", "vf": "rc1@fs/4", "ia": "butter2@fs/4",
+                       "if": "butter2@fs/4", "omega": "butter2@fs/4"}  # fmt: skip
+    bare = front_end_drive(drive_spec("chopper"), "none")
+    assert {ch.filter_text() for _, ch in bare.chain.items()} == {"none"}
+    assert bare.converter == drive_spec("chopper").converter
 
 
 def test_jobs_and_bad_arguments(capsys):
     import argparse
 
-    args = argparse.Namespace(motor="p12", rates=[2e3, 5e3], drives=["chopper"], seeds=3,
-                              duration=30.0, noise=0.002)  # fmt: skip
-    assert len(jobs(args)) == 6
+    args = argparse.Namespace(motors=["p12"], front_ends=["butter2", "none"], rates=[2e3, 5e3],
+                              drives=["chopper"], seeds=3, duration=30.0, noise=0.002)  # fmt: skip
+    assert len(jobs(args)) == 12
+    for bad in (["--front-ends", "fancy"], ["--motors", "p13"]):
+        with pytest.raises(SystemExit) as exc:
+            main([*bad, "--no-progress"])
+        assert exc.value.code == 2
     with pytest.raises(SystemExit) as exc:
         main(["--drives", "magic", "--no-progress"])
     assert exc.value.code == 2
