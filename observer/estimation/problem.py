@@ -12,6 +12,7 @@ voltage behind the current (sample periods).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -331,9 +332,10 @@ def make_problem(
         # Jumps between samples that a smooth reconstruction spreads over their intervals
         # (a switched model leaves them out of its segments; a held voltage has none).
         sw = switching if isinstance(switching, Switching) else find_switching(raw_voltage)
-        fe_v = front_ends[0] if front_ends is not None else None
+        known_v = front_ends[0] if front_ends is not None else None
         factor = alias_factor(
-            None if fe_v is None else (lambda f: fe_v.response(f, 1.0 / dt)), 1.0 / dt
+            None if known_v is None else functools.partial(known_v.response, sample_rate_hz=1 / dt),
+            1.0 / dt,
         )
         t = sw.transitions if sw.transitions is not None else sw.jumps
         edges = np.linspace(0, t.shape[0], ALIAS_PIECES + 1).astype(int)
