@@ -301,7 +301,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=10.0)
     parser.add_argument("--rate", type=float, default=2000.0)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=Path("bench/diagnose_rates.jsonl"))
+    parser.add_argument(
+        "--out", type=Path, default=None,
+        help="JSON lines of results (default: bench/diagnose_rates.jsonl, with --drive "
+        "realistic bench/diagnose_converter.jsonl)",
+    )  # fmt: skip
     parser.add_argument("--table", type=Path, default=None, help="write the markdown table here")
     parser.add_argument("--effects", default=None, help="comma-separated subset of effects")
     parser.add_argument(
@@ -315,6 +319,12 @@ def main(argv: list[str] | None = None) -> int:
         "--cases", default=None, help="';'-separated subset of the converter-fed case names"
     )
     args = parser.parse_args(argv)
+    if args.out is None:
+        args.out = Path(
+            "bench/diagnose_converter.jsonl"
+            if args.drive == "realistic"
+            else "bench/diagnose_rates.jsonl"
+        )
     if args.drive == "realistic":
         return converter_main(args)
 
