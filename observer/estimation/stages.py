@@ -49,6 +49,11 @@ MODEL_FLOOR = {"R": 0.001, "L": 0.002, "K": 0.0005}
 #: reference voltage does not show.
 OFFSET_SHARE = 0.001
 
+#: A voltage with transitions (jumps, filtered or not) in this share of its intervals is a
+#: converter's measured voltage, never a drive's held reference: a 6-pulse bridge at 5 kHz
+#: shows them in ~15 % of intervals, a reference only at its rare setpoint steps.
+CONVERTER_TRANSITIONS = 0.02
+
 #: A cubic read this many periods late imitates a held voltage (sample periods),
 #: within ``HOLD_SHIFT_WIDTH``.
 HOLD_SHIFT = -0.5
@@ -184,13 +189,19 @@ def hold_or_smooth(
 
     A drive that reports the voltage it holds for each period is described
     exactly by ``hold``; a voltage measured through a filter by ``smooth``.
-    The samples alone do not say which; the current does. A smooth fit whose
+    A voltage that shows a converter's jumps (:data:`CONVERTER_TRANSITIONS`) is
+    measured: ``smooth``. Otherwise the samples alone do not say which; the current does. A smooth fit whose
     shift is half a period early (:data:`HOLD_SHIFT`) is a hold in disguise:
     it beats hold only by averaging the voltage's noise (an errors-in-variables
     effect, not a better model). Otherwise ``smooth`` is kept when it explains
     the current decisively better (:data:`SMOOTH_OVER_HOLD` residual variances).
     """
     fit_smooth = polish_stage(smooth, result, bounds, polish=polish)
+    sw = smooth.inp.switching
+    if sw is not None and sw.transition_share >= CONVERTER_TRANSITIONS:
+        # A converter's jumps, seen through a filter: a measured voltage. A drive's
+        # held reference has no ripple; a front-end delay can still make hold fit well.
+        return smooth, fit_smooth
     fit_hold = polish_stage(hold, result, bounds, polish=polish)
     if abs(fit_smooth.point.shift - HOLD_SHIFT) < HOLD_SHIFT_WIDTH:
         # The cubic read half a period early is a held value: the smooth model
