@@ -36,6 +36,12 @@ UNITS: dict[str, str] = {
     "elapsed_ms": "ms",
 }
 
+#: The ``units`` map of each estimate a command prints as JSON (``replay --json``,
+#: ``subscribe --json``): the keys of the daemon's estimates, in SI base units.
+ESTIMATE_UNITS: dict[str, str] = {
+    k: UNITS[k] for k in ("R", "L", "K", "rms", "rel_std", "std", "t_ns", "window")
+}
+
 #: The display name of each parameter of each circuit.
 NAMES: dict[tuple[str, str], str] = {
     ("field", "R"): "Rf",

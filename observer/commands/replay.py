@@ -130,7 +130,7 @@ def main(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from observer.cli import UserError
-    from observer.commands.display import UNITS
+    from observer.commands.display import ESTIMATE_UNITS
     from observer.commands.outputs import check_outputs, write_bytes, write_text
     from observer.commands.run import format_estimate
     from observer.commands.trend import Trend, render_html, render_png
@@ -155,7 +155,7 @@ def main(args: argparse.Namespace) -> int:
         desc=Path(args.recording).name,
     )  # fmt: skip
     ids = names(config.observer.drive_id, config.observer.motor_id)
-    units = {k: UNITS[k] for k in ("R", "L", "K", "rms", "rel_std", "t_ns", "window")}
+    units = ESTIMATE_UNITS
 
     def on_result(result: WindowResult) -> None:
         trend.add_window(result.t1_ns, result.estimate, result.skip_reason)

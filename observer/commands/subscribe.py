@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, TextIO
 
+from observer.commands.display import ESTIMATE_UNITS, K_EXPLAINED, UNITS, eng
 from observer.service.zenohconf import zenoh_error
 
 if TYPE_CHECKING:
@@ -32,16 +34,23 @@ QUALITY_MARK = {
 }  # fmt: skip
 LEGEND = (
     "h: held, ?: unconfirmed, c: change being confirmed, o: outlier, -: none; "
-    "±: relative std %; speeds rad/s, !: tachometer fault, n: no speed channel"
+    "±%: relative std of the value; speeds rad/s, !: tachometer fault, n: no speed channel"
 )
-#: (column title, circuit, parameter) of the values shown.
+#: What K is (the daemon publishes K alone: kPhi needs the field current, which it does not).
+K_NOTE = K_EXPLAINED.format(at="")
+#: (column title, circuit, parameter) of the values shown (each cell with its unit).
 VALUES = (
-    ("Rf ohm", "field", "R"),
-    ("Lf H", "field", "L"),
-    ("Ra ohm", "armature", "R"),
-    ("La H", "armature", "L"),
-    ("K H", "armature", "K"),
+    ("Rf", "field", "R"),
+    ("Lf", "field", "L"),
+    ("Ra", "armature", "R"),
+    ("La", "armature", "L"),
+    ("K", "armature", "K"),
 )
+#: Width of a value with its unit (``-123.45 mohm``), then of its relative std (%).
+CELL = 12
+REL = 6
+#: Each value's column title: its name over the value, ``±%`` over its relative std.
+_TITLES = tuple(f"{title:>{CELL}}  {'±%':>{REL}}" for title, _c, _p in VALUES)
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -73,7 +82,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
         help="table: one row per motor, redrawn; lines: one line per message; "
         "auto: table on a terminal, else lines",
     )  # fmt: skip
-    parser.add_argument("--json", action="store_true", help="print each message's JSON as is")
+    parser.add_argument(
+        "--json", action="store_true",
+        help="print each message's JSON as it came (an estimate's with a 'units' map added)",
+    )  # fmt: skip
     parser.add_argument(
         "--refresh", type=float, default=1.0, metavar="S", help="table redraw period (s)"
     )
@@ -107,22 +119,20 @@ def check_keyexpr(keyexpr: str, what: str = "KEYEXPR") -> None:
 # ---------------------------------------------------------------------------- formatting
 
 
-def _number(v: Any) -> str:
-    return "-" if not isinstance(v, int | float) or isinstance(v, bool) else format(v, ".5g")
-
-
 def _value(e: dict[str, Any], circuit: str, param: str) -> str:
-    """The tracked value, its quality mark and its relative std (%)."""
+    """One cell: the tracked value in engineering units (``20.012 mH``), its quality mark
+    and its relative std (%)."""
     c = e.get(circuit) or {}
     value = c.get(param)
-    mark = (
-        QUALITY_MARK.get((c.get("quality") or {}).get(param, ""), " ") if value is not None else " "
-    )
+    if not isinstance(value, int | float) or isinstance(value, bool):
+        return f"{'-':>{CELL}}  {'':>{REL}}"
+    mark = QUALITY_MARK.get((c.get("quality") or {}).get(param, ""), " ")
     std = (c.get("std") or {}).get(param)
     rel = ""
-    if isinstance(value, int | float) and isinstance(std, int | float) and value:
-        rel = f"{100 * std / abs(value):.2f}"
-    return f"{_number(value):>10}{mark}{rel:>6}"
+    if isinstance(std, int | float) and value and math.isfinite(std):
+        percent = 100 * std / abs(value)
+        rel = f"{percent:.2f}" if percent < 100 else f"{percent:.3g}"
+    return f"{eng(value, UNITS[param], 5):>{CELL}} {mark}{rel:>{REL}}"
 
 
 def _speeds(e: dict[str, Any]) -> str:
@@ -167,8 +177,8 @@ def names_of(key_expr: str, message: dict[str, Any]) -> tuple[str, str, str]:
 
 LINE_HEADER = (
     f"{'drive':<12} {'motor':<8} {'t (s)':>9} "
-    + " ".join(f"{title + ' ±':>17}" for title, _c, _p in VALUES)
-    + f" {'Tf C':>6} {'Ta C':>6} {'w_emf':>7} {'w_meas':>8}    ({LEGEND})"
+    + " ".join(_TITLES)
+    + f" {'Tf C':>6} {'Ta C':>6} {'w_emf':>7} {'w_meas':>8}    ({LEGEND}; {K_NOTE})"
 )
 
 
@@ -201,7 +211,7 @@ class FleetTable:
 
     HEADER = (
         f"{'drive':<12} {'motor':<8} "
-        + " ".join(f"{title + ' ±':>17}" for title, _c, _p in VALUES)
+        + " ".join(_TITLES)
         + f" {'Tf C':>6} {'Ta C':>6} {'w_emf':>7} {'w_meas':>8} {'quality':<11} {'age s':>6}"
         + "  health"
     )
@@ -232,7 +242,7 @@ class FleetTable:
                 f"{drive:<12} {motor:<8} {cells} {temps} {_speeds(e)} {quality(e):<11} "
                 f"{age:>6}  {status}"
             )
-        lines.append(f"({LEGEND}; age: seconds since the last estimate arrived)")
+        lines.append(f"({LEGEND}; age: seconds since the last estimate arrived; {K_NOTE})")
         return lines
 
 
@@ -337,7 +347,7 @@ def main(args: argparse.Namespace) -> int:
                 continue
             received += 1
             if args.json:
-                print(payload.decode(errors="replace"), flush=True)
+                print(_with_units(key, payload), flush=True)
                 continue
             try:
                 message = json.loads(payload)
@@ -360,6 +370,20 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+def _with_units(key: str, payload: bytes) -> str:
+    """A message's JSON as it came; an estimate's with a ``units`` map added (SI base units)."""
+    text = payload.decode(errors="replace")
+    if not key.endswith(("/estimate", "/latest")):
+        return text
+    try:
+        message = json.loads(text)
+    except ValueError:
+        return text
+    if not isinstance(message, dict) or "units" in message:
+        return text
+    return json.dumps({**message, "units": ESTIMATE_UNITS}, separators=(",", ":"))
+
+
 def _connected(session: Any) -> bool:
     """Whether any Zenoh peer or router is connected to this session."""
     info = session.info
@@ -379,7 +403,7 @@ def _query_latest(session: Any, args: Any) -> int:
                 continue
             answered += 1
             key, payload = str(reply.ok.key_expr), reply.ok.payload.to_bytes()
-            print(payload.decode() if args.json else format_line(key, json.loads(payload)))
+            print(_with_units(key, payload) if args.json else format_line(key, json.loads(payload)))
         if answered:
             sys.stdout.flush()
             return 0

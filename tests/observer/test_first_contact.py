@@ -114,6 +114,10 @@ def test_time_in_milliseconds_is_an_error_that_says_how_to_read_it(p12, tmp_path
     out = json.loads(res.stdout)
     assert out["armature"]["L"] == pytest.approx(0.02, rel=0.15)  # H, not 20 H
     assert out["warnings"] == []
+    us = _variant(rec, tmp_path / "us.csv", t_factor=1e6)
+    one_line_error(here("estimate", str(us), cwd=tmp_path), "us.csv", "microseconds", "t=us")
+    # diagnose reads recordings the same way: the same line, not a fit of a 2 Hz recording.
+    one_line_error(here("diagnose", str(ms), cwd=tmp_path), "ms.csv", "milliseconds", "t=ms")
 
 
 def test_ten_samples_warn_too_short_and_flag_what_is_not_identified(p12, tmp_path):

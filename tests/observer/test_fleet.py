@@ -60,11 +60,12 @@ def test_a_router_with_three_daemons_and_one_subscriber_shows_every_motor(tmp_pa
 
     expected = {tuple(name.split("-")) for name in DAEMONS}
     number = r"\d[\d.e+-]*"
-    # Each row: drive, motor, Rf, Lf, Ra, La, K (each a value, a mark and its relative std,
-    # or "-"), Tf, Ta, EMF and measured speed, quality, age, health. Wait until every motor's
-    # row has a field and armature fit and its health ('dcobserver/**' carries both).
-    fit = rf"({number})\S?\s+{number}"  # a value, its mark, its relative std (%)
-    maybe = rf"(?:{number}\S?\s+{number}|-)"
+    # Each row: drive, motor, Rf, Lf, Ra, La, K (each a value with its unit, perhaps a quality
+    # mark, and its relative std; or "-"), Tf, Ta, EMF and measured speed, quality, age,
+    # health. Wait until every motor's row has a field and armature fit and its health
+    # ('dcobserver/**' carries both).
+    fit = rf"(-?{number}) (\S+)(?: [-hco?])?\s+{number}"  # value, unit, mark, relative std
+    maybe = rf"(?:-?{number} \S+(?: [-hco?])?\s+{number}|-)"
     row = re.compile(
         rf"^(\S+)\s+(\S+)\s+{fit}\s+{maybe}\s+{fit}\s+{maybe}\s+{fit}\s+"
         rf"(\S+)\s+(\S+)\s+(\S+)\s+(\S+)\s+(\w+)\s+({number})\s+(.+)$"
@@ -74,7 +75,7 @@ def test_a_router_with_three_daemons_and_one_subscriber_shows_every_motor(tmp_pa
         rows = {}
         for line in latest_table(subscriber.stdout):
             m = row.match(line)
-            if m and m.group(12).strip() != "-":  # its health (every 1 s) has arrived too
+            if m and m.group(15).strip() != "-":  # its health (every 1 s) has arrived too
                 rows[(m.group(1), m.group(2))] = m
         if set(rows) == expected:
             break
@@ -86,10 +87,11 @@ def test_a_router_with_three_daemons_and_one_subscriber_shows_every_motor(tmp_pa
         except Exception:
             pass
     for (drive, motor), m in rows.items():
-        rf, ra, k = float(m.group(3)), float(m.group(4)), float(m.group(5))
+        assert (m.group(4), m.group(6), m.group(8)) == ("ohm", "ohm", "H"), m.group(0)
+        rf, ra, k = float(m.group(3)), float(m.group(5)), float(m.group(7))
         # The demo is the P-12: Rf = 185 ohm, Ra = 3.5 ohm, K = 1.12 H.
         assert 150 < rf < 220 and 2.5 < ra < 4.5 and 0.9 < k < 1.4, (drive, motor, m.group(0))
-        assert float(m.group(11)) < 10.0, m.group(0)  # age (s): live, not a stale row
+        assert float(m.group(14)) < 10.0, m.group(0)  # age (s): live, not a stale row
 
 
 def test_the_shipped_fleet_configs_load_strictly(tmp_path):
@@ -111,7 +113,8 @@ def test_the_table_keeps_one_row_per_motor_with_its_latest_estimate_and_health()
     table = FleetTable()
     estimate = {
         "drive_id": "shovel1", "motor_id": "hoist", "t_ns": 5_000_000_000,
-        "field": {"R": 185.04, "L": 50.1, "quality": {"R": "ok", "L": "held"}},
+        "field": {"R": 185.04, "L": 50.1, "std": {"R": 0.037, "L": None},
+                  "quality": {"R": "ok", "L": "held"}},
         "temperature": {"field": {"C": 61.27, "std": 0.4}},
         "armature": {"R": 3.5012, "L": None, "K": 1.1213,
                      "quality": {"R": "ok", "L": "none", "K": "ok"}},
@@ -125,12 +128,15 @@ def test_the_table_keeps_one_row_per_motor_with_its_latest_estimate_and_health()
     assert header.split()[:2] == ["drive", "motor"] and "age" in header
     cells = hoist.split()
     assert cells[:2] == ["shovel1", "hoist"]
-    assert "185.04" in cells and "50.1h" in cells and "3.5012" in cells and "1.1213" in cells
+    # Engineering units in every cell, the quality mark after the unit, then the relative
+    # std (%) where the estimate has one.
+    assert "185.04 ohm    0.02" in hoist and "50.1 H h" in hoist and "3.5012 ohm" in hoist
+    assert "1.1213 H" in hoist and header.count("±%") == 5
     assert "61.3" in cells  # the field winding's temperature, when the estimate has one
     assert cells[-3:] == ["none", "2.0", "source_stalled"]  # worst quality, age (s), health
     assert shovel2.split()[:2] == ["shovel2", "-"]
     assert shovel2.endswith("  ok; last event: Ra +3.1 % at 12.40 s")
-    assert "held" in legend
+    assert "held" in legend and "EMF constant per field ampere" in legend
     assert quality({"field": {"R": 1.0, "quality": {"R": "ok"}}}) == "ok"
     assert format_line("dcobserver/shovel2/health", {"flags": []}).split()[-2:] == ["health:", "ok"]
 

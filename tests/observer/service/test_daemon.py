@@ -262,6 +262,7 @@ def test_kill_9_leaves_a_log_readable_to_the_last_second_and_recover_fixes_it(
     assert query.proc.wait(60) == 0, "".join(query.stderr)
     latest = json.loads(next(x for x in query.stdout if x.startswith("{")))
     assert latest["drive_id"] == "test" and latest["armature"]["R"] > 0
+    assert latest["units"]["R"] == "ohm" and latest["units"]["L"] == "H"  # --json says its units
     # The open file has a hidden temporary name until it is complete (never a cut final name).
     assert not list(log_dir.glob("*.mcap"))
     (log_file,) = log_dir.glob(".*.mcap.partial-*")
