@@ -63,6 +63,17 @@ def _exponent(value: float) -> int:
     return max(-4, min(3, int(math.floor(math.log10(abs(value)) / 3))))
 
 
+def prefix_scale(value: float) -> tuple[float, str]:
+    """The power of 1000 and its SI prefix that put ``|value|`` in [1, 1000).
+
+    ``prefix_scale(0.0205) == (0.001, "m")``; pico to giga, beyond them the nearest; 0, NaN
+    and infinities get ``(1.0, "")``. Tables and figures divide by the factor and write the
+    prefix before the unit.
+    """
+    e = _exponent(value)
+    return 1000.0**e, _PREFIXES[e]
+
+
 def eng(value: float | None, unit: str, digits: int = 4, *, exponent: int | None = None) -> str:
     """``value`` with an SI prefix: ``eng(0.000196436, "H") == "196.4 uH"``.
 

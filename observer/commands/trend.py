@@ -35,7 +35,6 @@ QUALITY_STYLE: dict[str, tuple[str, str]] = {
     "none": ("0.6", "x"),
     "other": ("tab:purple", "^"),
 }
-_PREFIX = {-4: "p", -3: "n", -2: "u", -1: "m", 0: "", 1: "k", 2: "M", 3: "G"}
 
 
 @dataclass
@@ -126,13 +125,11 @@ class Trend:
 
 def _scale(values: np.ndarray) -> tuple[float, str]:
     """The SI prefix that puts the median magnitude of ``values`` in [1, 1000)."""
+    from observer.commands.display import prefix_scale
+
     finite = np.abs(values[np.isfinite(values)])
     finite = finite[finite > 0]
-    if finite.size == 0:
-        return 1.0, ""
-    e = int(math.floor(math.log10(float(np.median(finite))) / 3))
-    e = max(-4, min(3, e))
-    return 1000.0**e, _PREFIX[e]
+    return prefix_scale(float(np.median(finite))) if finite.size else (1.0, "")
 
 
 def _figure(trend: Trend, title: str) -> Any:

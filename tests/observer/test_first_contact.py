@@ -279,6 +279,17 @@ def test_tables_use_engineering_units_and_explain_k(p12, tmp_path):
     assert "at the present field" in res.stdout
 
 
+def test_tables_and_the_trend_figure_pick_one_prefix():
+    from observer.commands.display import eng, prefix_scale
+    from observer.commands.trend import _scale
+
+    # The trend's axes scale by the median of a series with the tables' own helper.
+    assert _scale(np.array([0.0195, 0.0205, np.nan, 0.02])) == prefix_scale(0.02) == (1e-3, "m")
+    assert eng(0.02, "H") == "20 mH" and _scale(np.array([np.nan])) == (1.0, "")
+    assert prefix_scale(185.0) == (1.0, "") and prefix_scale(2e-13)[1] == "p"
+    assert prefix_scale(float("nan")) == (1.0, "")
+
+
 def test_every_json_says_its_units(p12, tmp_path):
     path, _ = p12
     est = json.loads(here("estimate", str(path), "--json", *FAST, cwd=tmp_path).stdout)
