@@ -14,7 +14,9 @@ drives to mill motors, not what one motor is:
 =============================  ==============================================
 sample rate                    >= 100 Hz for an armature (time constants of
                                0.1-200 ms), >= 20 Hz for a field (50 ms - 10 s)
-voltages                       <= 3 kV (warning), <= 20 kV (error)
+voltages                       <= 3 kV (warning), <= 20 kV (error); a peak
+                               >= 1 V (warning below: a wound field and an
+                               armature under load need volts)
 armature current               <= 20 kA (warning), <= 100 kA (error)
 field current                  <= 1 kA (warning), <= 10 kA (error)
 speed                          <= 1000 rad/s = 9550 rpm (warning), 10000 (error)
@@ -61,6 +63,8 @@ PEAK_LIMITS: Final[dict[str, tuple[float, float]]] = {
     "if": (1e3, 1e4),
     "omega": (1e3, 1e4),
 }
+#: A winding's voltage peaks at least this (V) while its current flows (warning below).
+MIN_VOLTAGE_PEAK_V: Final = 1.0
 FIELD_RESISTANCE_OHM: Final = (0.1, 1e4)
 ARMATURE_RESISTANCE_OHM: Final = (1e-4, 1e3)
 FIELD_TAU_S: Final = (5e-3, 30.0)
@@ -199,6 +203,24 @@ def _peak_findings(signals: Mapping[str, np.ndarray], t: np.ndarray | None) -> l
                 f"is that large (<= {_si(warn, units[name])}){hint}"
             )
         out.append(Finding(severity, "peak", text, name, {name: unit} if plausible else {}))
+    return out
+
+
+def _low_voltage_findings(signals: Mapping[str, np.ndarray]) -> list[Finding]:
+    """Voltages in kV read as V: a winding whose current flows but whose voltage peaks
+    below a volt (its resistance and inductance come out 1000 times too small, and plausible)."""
+    out: list[Finding] = []
+    for voltage, current, what in (("va", "ia", "an armature"), ("vf", "if", "a wound field")):
+        if voltage not in signals or current not in signals or signals[voltage].size == 0:
+            continue
+        peak = float(np.max(np.abs(signals[voltage])))
+        flows = float(np.max(np.abs(signals[current]))) > 0
+        if flows and 0 < peak < MIN_VOLTAGE_PEAK_V:
+            text = (
+                f"{voltage} peaks at {_si(peak, 'V')} while {current} flows: {what} needs "
+                f"volts (>= {MIN_VOLTAGE_PEAK_V:g} V); is {voltage} in kV?"
+            )
+            out.append(Finding("warning", "peak", text, voltage, {voltage: "kV"}))
     return out
 
 
@@ -393,7 +415,9 @@ def check_data(
                 "record a few hundred samples or more, over several time constants",
             )  # fmt: skip
         )
-    peaks = _peak_findings(signals, t)
+    # A magnitude beyond (or below) any motor's names its channel and unit: the power
+    # balance below would only say "va or ia" about the same cause.
+    peaks = _peak_findings(signals, t) + _low_voltage_findings(signals)
     findings += peaks
     if not any(f.severity == "error" for f in findings):
         # Magnitudes beyond any motor's would overflow the products below.

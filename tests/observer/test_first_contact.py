@@ -163,6 +163,8 @@ def test_no_field_step_leaves_lf_flagged_in_table_and_json(p12, tmp_path):
         ("ma.csv", {"ia": 1e4}, ["ia reaches", "is ia in mA?", "--units ia=mA"]),
         ("rpm.csv", {"omega": 60 / (2 * np.pi)}, ["rpm", "--units omega=rpm"]),
         ("negw.csv", {"omega": -1.0}, ["opposes va", "--units omega=-rad/s"]),
+        # Volts read from a file in kV: R and L 1000x too small and plausible on their own.
+        ("kv.csv", {"va": 1e-3, "vf": 1e-3}, ["va peaks at 20", "is va in kV?", "va=kV"]),
     ],
 )
 def test_mis_scaled_channels_warn_loudly_and_mark_the_values_suspect(
