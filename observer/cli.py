@@ -168,6 +168,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except _user_error_types() as exc:
         print(f"dcobserver {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except MemoryError:
+        # Sizes are checked where an option sets them (--particles, --duration x --rate);
+        # a recording or an option beyond this machine still ends in one line.
+        print(
+            f"dcobserver {args.command}: error: out of memory: the recording or the options "
+            "need more than this machine has",
+            file=sys.stderr,
+        )  # fmt: skip
+        return EXIT_USAGE
     except KeyboardInterrupt:
         return 130
     except _Terminated:

@@ -25,6 +25,10 @@ from typing import Any, TypeVar
 
 T = TypeVar("T")
 
+#: Largest swarm (particles): far beyond any useful size (100 is the default), and small
+#: enough that a typo (1e11) is an error, not an allocation of terabytes.
+MAX_PARTICLES = 10_000
+
 
 class ConfigError(ValueError):
     """A configuration problem, with the file and key in its message."""
@@ -59,7 +63,7 @@ class SearchRangeConfig:
 class EstimateConfig:
     """Swarm settings of the estimators."""
 
-    particles: int = dataclasses.field(default=100, metadata={"min": 2})
+    particles: int = dataclasses.field(default=100, metadata={"min": 2, "max": MAX_PARTICLES})
     iterations: int = dataclasses.field(default=100, metadata={"min": 1})
     schedule: str = dataclasses.field(
         default="s-k", metadata={"choices": ("s-k", "k-s", "social", "individual")}
@@ -372,9 +376,9 @@ class ObserverConfig:
         default="both", metadata={"choices": ("both", "field", "armature")}
     )
     seed: int = 0
-    cold_particles: int = dataclasses.field(default=60, metadata={"min": 2})
+    cold_particles: int = dataclasses.field(default=60, metadata={"min": 2, "max": MAX_PARTICLES})
     cold_iterations: int = dataclasses.field(default=40, metadata={"min": 1})
-    warm_particles: int = dataclasses.field(default=24, metadata={"min": 2})
+    warm_particles: int = dataclasses.field(default=24, metadata={"min": 2, "max": MAX_PARTICLES})
     warm_iterations: int = dataclasses.field(default=20, metadata={"min": 1})
     explore_fraction: float = dataclasses.field(default=0.2, metadata={"check": _fraction})
     initial_range_factor: float = dataclasses.field(default=2.0, metadata={"check": _above_one})
@@ -691,6 +695,11 @@ def read_toml(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise ConfigError(f"{p}: cannot read config: {exc.strerror or exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:  # TOML is UTF-8: a file saved as UTF-16 or Latin-1
+        raise ConfigError(
+            f"{p}: not valid TOML: not UTF-8 text (byte {exc.object[exc.start]:#04x} at offset "
+            f"{exc.start}); save it as UTF-8"
+        ) from None
 
 
 def build(

@@ -145,7 +145,8 @@ class ReplaySource(Source):
     def __init__(self, options: ReplayOptions) -> None:
         super().__init__()
         if not os.path.isfile(options.path):
-            raise SourceError(f"replay: recording {options.path} not found")
+            what = "is a directory, not a file" if os.path.isdir(options.path) else "not found"
+            raise SourceError(f"replay: recording {options.path} {what}")
         self.options = options
         self._messages: Iterator[SampleBlock] | None = None
         self._pending_t: list[np.ndarray] = []

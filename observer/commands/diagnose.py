@@ -40,19 +40,21 @@ def main(args: argparse.Namespace) -> int:
     from observer.commands.display import eng, finite_json, report_findings
     from observer.commands.estimate import read_checked
     from observer.commands.outputs import check_outputs, write_text
+    from observer.config import MAX_PARTICLES
     from observer.diagnosis.diagnose import diagnose
     from observer.diagnosis.effects import LIBRARY
     from observer.estimation import check_data
 
-    if args.particles < 2 or args.iterations < 0:
-        raise UserError("--particles must be >= 2 and --iterations >= 0")
+    if not 2 <= args.particles <= MAX_PARTICLES or args.iterations < 0:
+        raise UserError(f"--particles must be 2-{MAX_PARTICLES} and --iterations >= 0")
     effects = None
     if args.effects:
         effects = [e.strip() for e in args.effects.split(",") if e.strip()]
         bad = [e for e in effects if e not in LIBRARY]
         if bad:
             raise UserError(f"unknown effect(s) {', '.join(bad)}; expected {', '.join(LIBRARY)}")
-    check_outputs(("--json", args.json), ("--report", args.report))
+    inputs = [args.recording, *([args.config] if args.config else [])]
+    check_outputs(("--json", args.json), ("--report", args.report), inputs=inputs)
     chain: Any = None
     if args.config:
         from observer.config import load_config

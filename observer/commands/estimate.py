@@ -114,7 +114,7 @@ def circuits_of(rec: Any, requested: str, path: str) -> tuple[str, ...]:
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
     from observer.commands.display import finite_json, print_warnings, report_findings
-    from observer.config import Config, load_config
+    from observer.config import MAX_PARTICLES, Config, load_config
     from observer.estimation import (
         EstimationError,
         check_data,
@@ -134,8 +134,8 @@ def main(args: argparse.Namespace) -> int:
     settings = settings.replace(**{k: v for k, v in overrides.items() if v is not None})
     if args.no_polish:
         settings = settings.replace(polish=False)
-    if settings.particles < 2 or settings.iterations < 1:
-        raise UserError("--particles must be >= 2 and --iterations >= 1")
+    if not 2 <= settings.particles <= MAX_PARTICLES or settings.iterations < 1:
+        raise UserError(f"--particles must be 2-{MAX_PARTICLES} and --iterations >= 1")
     # Warnings are printed with the result: a failure on the way is then one line.
     warnings: list[str] = []
     rec = read_checked(args.recording, args.units, notes=warnings)

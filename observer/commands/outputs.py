@@ -6,10 +6,28 @@ commands share for ``--json``, ``--report`` and ``--png`` files.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable
 
 
-def check_outputs(*pairs: tuple[str, str | None]) -> None:
+def check_input(path: str) -> None:
+    """Raise a one-line error unless ``path`` is a file to read (not missing, not a folder).
+
+    Raises
+    ------
+    observer.cli.UserError
+        ``"rec.mcap: file not found"``, ``"logs: a directory, not a file"``.
+    """
+    from observer.cli import UserError
+
+    if os.path.isfile(path):
+        return
+    if os.path.isdir(path):
+        raise UserError(f"{path}: a directory, not a file")
+    raise UserError(f"{path}: {'not a regular file' if os.path.exists(path) else 'file not found'}")
+
+
+def check_outputs(*pairs: tuple[str, str | None], inputs: Iterable[str] = ()) -> None:
     """Raise a one-line error unless every given output path can be written.
 
     Call before long work, so a typo in a folder name fails in milliseconds,
@@ -19,6 +37,9 @@ def check_outputs(*pairs: tuple[str, str | None]) -> None:
     ----------
     *pairs : (option, path or None)
         e.g. ``("--report", args.report)``; ``None`` paths are skipped.
+    inputs : iterable of str
+        Files the command reads (the recording, a config): an output naming one
+        of them is an error (it would overwrite the recording with a report).
 
     Raises
     ------
@@ -35,6 +56,11 @@ def check_outputs(*pairs: tuple[str, str | None]) -> None:
         if path in seen:
             raise UserError(f"{seen[path]} and {option} name the same file {path}")
         seen[path] = option
+        for source in inputs:
+            if os.path.exists(path) and os.path.exists(source) and os.path.samefile(path, source):
+                raise UserError(
+                    f"{option} {path} is the input {source} itself: writing it would destroy it"
+                )
         try:
             check_writable(path)
         except OSError as exc:

@@ -35,14 +35,14 @@ def output_path(src: str) -> str:
 
 def main(args: argparse.Namespace) -> int:
     from observer.cli import UserError
+    from observer.commands.outputs import check_input
     from observer.recording import check_writable
     from observer.service.mcaplog import recover
 
     if args.in_place and args.output:
         raise UserError("give either --output or --in-place")
     src = args.file
-    if not Path(src).is_file():
-        raise UserError(f"{src}: {'not a file' if Path(src).exists() else 'file not found'}")
+    check_input(src)
     out = src if args.in_place else (args.output or output_path(src))
     overwrite = args.in_place or args.force
     if not overwrite and Path(out).exists():

@@ -129,9 +129,8 @@ class _Tap:
 def main(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from observer.cli import UserError
     from observer.commands.display import ESTIMATE_UNITS
-    from observer.commands.outputs import check_outputs, write_bytes, write_text
+    from observer.commands.outputs import check_input, check_outputs, write_bytes, write_text
     from observer.commands.run import format_estimate
     from observer.commands.trend import Trend, render_html, render_png
     from observer.config import Config, load_config
@@ -142,9 +141,8 @@ def main(args: argparse.Namespace) -> int:
     from replay.source import ReplayOptions, ReplaySource
 
     config = load_config(args.config) if args.config else Config()
-    if not Path(args.recording).is_file():
-        raise UserError(f"{args.recording}: file not found")
-    check_outputs(("--report", args.report), ("--png", args.png))
+    check_input(args.recording)
+    check_outputs(("--report", args.report), ("--png", args.png), inputs=[args.recording])
     _check(args.recording, config)
     source: Any = ReplaySource(ReplayOptions(path=args.recording, speed=0.0, block_s=0.1))
     trend = Trend()

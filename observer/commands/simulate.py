@@ -4,8 +4,13 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 
 log = logging.getLogger(__name__)
+
+#: The most samples one recording may have: an hour at 20 kHz fits, a typo (1e9 s) is an
+#: error instead of an allocation of terabytes.
+MAX_SAMPLES = 1e8
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -57,8 +62,15 @@ def main(args: argparse.Namespace) -> int:
     from observer.recording import write_recording
     from observer.simulation.simulate import simulate
 
-    if not args.duration > 0 or not args.rate > 0 or args.noise < 0:
-        raise UserError("--duration and --rate must be > 0 and --noise >= 0")
+    finite = all(math.isfinite(x) for x in (args.duration, args.rate, args.noise))
+    if not (finite and args.duration > 0 and args.rate > 0 and args.noise >= 0):
+        raise UserError("--duration and --rate must be finite and > 0, --noise finite and >= 0")
+    if args.duration * args.rate > MAX_SAMPLES:
+        raise UserError(
+            f"--duration {args.duration:g} s at --rate {args.rate:g} Hz is "
+            f"{args.duration * args.rate:.3g} samples; at most {MAX_SAMPLES:.0e} (an hour at "
+            "20 kHz is 7.2e7)"
+        )
     if not args.output.lower().endswith((".csv", ".csv.gz", ".mcap")):
         raise UserError(f"{args.output}: expected a name ending in .csv, .csv.gz or .mcap")
     check_outputs(("OUT", args.output))

@@ -242,7 +242,13 @@ def read_mcap(path: PathArg, *, notes: list[str] | None = None) -> Recording:
                 path=name,
             )
         others = sorted(content.topics - {SAMPLES_TOPIC})
-        found = f"; its topics: {', '.join(others)}" if others else "; it has no topics"
+        declared = SAMPLES_TOPIC in content.topics  # a writer stopped before the first sample
+        other = " other" if declared else ""
+        found = f"; its{other} topics: {', '.join(others)}" if others else (
+            f"; it has no{other} topics"
+        )  # fmt: skip
+        if declared:
+            found = f" (the topic is declared, the recording empty){found}"
         raise RecordingError(f"no messages on topic {SAMPLES_TOPIC!r}{found}", path=name)
     if not content.complete:
         note = (

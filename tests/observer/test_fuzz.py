@@ -284,11 +284,12 @@ def good_csv(base, folder) -> Path:
     return path
 
 
-@given(text=config_text())
+@given(text=config_text(), encoding=st.sampled_from(["utf-8"] * 4 + ["utf-16", "latin-1"]))
 @FUZZ
-def test_fuzzed_config_files_end_in_an_error_line_or_an_estimate(good_csv, folder, text):
+def test_fuzzed_config_files_end_in_an_error_line_or_an_estimate(good_csv, folder, text, encoding):
     cfg = folder / "c.toml"
-    cfg.write_text(text, encoding="utf-8", errors="surrogatepass")
+    # Saved by another editor: UTF-16 (with its BOM) or Latin-1 is not TOML's UTF-8.
+    cfg.write_bytes(text.encode(encoding, errors="replace"))
     code, out, err = cli("estimate", str(good_csv), "--json", "--config", str(cfg), *SWARM)
     if code == 2:
         assert "c.toml" in err or "--particles" in err, err  # names the file
