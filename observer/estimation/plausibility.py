@@ -134,15 +134,14 @@ def _si(value: float, unit: str) -> str:
 def _rate_finding(dt: float, circuits: Sequence[str]) -> Finding | None:
     rate = 1.0 / dt
     period = f"sample period {_si(dt, 's')} ({_si(rate, 'Hz')})"
-    ms_ok = rate * 1e3 >= MIN_RATE_ARMATURE_HZ
-    us_ok = rate * 1e6 >= MIN_RATE_ARMATURE_HZ
     if rate < MIN_RATE_HZ:
-        if ms_ok and rate * 1e3 <= MAX_RATE_HZ:
-            hint, suggest = "; is t in milliseconds?", {"t": "ms"}
-        elif us_ok:
-            hint, suggest = "; is t in microseconds?", {"t": "us"}
-        else:
-            hint, suggest = "", {}
+        # The first time unit that makes the rate a drive's (integer nanoseconds are what
+        # MCAP tools and loggers export).
+        hint, suggest = "", {}
+        for factor, unit, word in ((1e3, "ms", "milli"), (1e6, "us", "micro"), (1e9, "ns", "nano")):
+            if MIN_RATE_ARMATURE_HZ <= rate * factor <= MAX_RATE_HZ:
+                hint, suggest = f"; is t in {word}seconds?", {"t": unit}
+                break
         return Finding(
             "error", "sample_rate",
             f"{period}: far too slow for a DC motor's windings (time constants of "

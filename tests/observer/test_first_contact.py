@@ -117,6 +117,8 @@ def test_time_in_milliseconds_is_an_error_that_says_how_to_read_it(p12, tmp_path
     assert out["warnings"] == []
     us = _variant(rec, tmp_path / "us.csv", t_factor=1e6)
     one_line_error(here("estimate", str(us), cwd=tmp_path), "us.csv", "microseconds", "t=us")
+    ns = _variant(rec, tmp_path / "ns.csv", t_factor=1e9)
+    one_line_error(here("estimate", str(ns), cwd=tmp_path), "ns.csv", "nanoseconds", "t=ns")
     # diagnose reads recordings the same way: the same line, not a fit of a 2 Hz recording.
     one_line_error(here("diagnose", str(ms), cwd=tmp_path), "ms.csv", "milliseconds", "t=ms")
 

@@ -47,6 +47,8 @@ def test_time_in_milliseconds_or_microseconds_is_an_error_naming_the_unit(p12):
     assert "milliseconds" in f.text and "2 Hz" in f.text
     (f,) = check_data(s, dt * 1e6, BOTH)
     assert f.severity == "error" and dict(f.suggest) == {"t": "us"}
+    (f,) = check_data(s, dt * 1e9, BOTH)  # integer nanoseconds, as MCAP tools export them
+    assert f.severity == "error" and dict(f.suggest) == {"t": "ns"} and "nanoseconds" in f.text
 
 
 def test_a_slow_rate_warns_for_the_armature_not_for_a_field(p12):
