@@ -288,8 +288,15 @@ def main(args: argparse.Namespace) -> int:
     from observer.service.zenohconf import session_json
 
     check_keyexpr(args.keyexpr)
-    if args.count < 0 or args.timeout < 0 or not args.warn_after > 0:
-        raise UserError("--count and --timeout must be >= 0 and --warn-after > 0")
+    times = (args.timeout, args.warn_after, args.refresh)
+    if (
+        args.count < 0
+        or not (math.isfinite(sum(times)) and args.timeout >= 0)
+        or not (args.warn_after > 0 and args.refresh > 0)
+    ):
+        raise UserError(
+            "--count and --timeout must be >= 0, --warn-after and --refresh > 0 (finite)"
+        )
     link = session_link(args)
     try:
         session = zenoh.open(zenoh.Config.from_json5(session_json(link, args.mode)))

@@ -259,6 +259,14 @@ def test_help_pages_show_real_defaults_once(tmp_path):
     assert re.search(r"--mode \{peer,client\}\s+Zenoh role", sub)
 
 
+@pytest.mark.parametrize(
+    "args", [["--timeout", "nan"], ["--timeout", "inf"], ["--refresh", "0"], ["--count", "-1"]]
+)
+def test_subscribe_times_and_counts_are_checked(tmp_path, args):
+    # --timeout nan waited forever (NaN > 0 is false: no deadline), --refresh 0 redrew at once.
+    one_line_error(here("subscribe", *args, cwd=tmp_path), "--timeout must be >= 0")
+
+
 def test_subscribe_warns_when_nothing_answers(tmp_path):
     res = run(
         "subscribe", "--connect", "tcp/127.0.0.1:1", "--timeout", "3", "--warn-after", "1",
