@@ -43,7 +43,8 @@ def main(args: argparse.Namespace) -> int:
     from observer.config import MAX_PARTICLES
     from observer.diagnosis.diagnose import diagnose
     from observer.diagnosis.effects import LIBRARY
-    from observer.estimation import check_data
+    from observer.diagnosis.fitting import split_segments
+    from observer.estimation import EstimationError, check_data
 
     if not 2 <= args.particles <= MAX_PARTICLES or args.iterations < 0:
         raise UserError(f"--particles must be 2-{MAX_PARTICLES} and --iterations >= 0")
@@ -63,6 +64,12 @@ def main(args: argparse.Namespace) -> int:
     rec = read_checked(args.recording, args.units)
     rec.require("va", "ia", "vf", "if", "omega", path=args.recording, purpose="a diagnosis")
     findings = check_data(dict(rec.signals), rec.dt, ("field", "armature"), t=rec.t)
+    errors = [f for f in findings if f.severity == "error"]
+    if not errors:  # too short for a diagnosis: its one line, not a warning and an error
+        try:
+            split_segments(rec.n_samples, rec.dt, rec.n_samples)
+        except EstimationError as exc:
+            raise UserError(f"{args.recording}: {exc}") from None
     warnings = report_findings("diagnose", findings, path=args.recording)
     diag = diagnose(
         rec, effects=effects, n_particles=args.particles, iterations=args.iterations,

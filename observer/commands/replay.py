@@ -129,7 +129,7 @@ class _Tap:
 def main(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from observer.commands.display import ESTIMATE_UNITS
+    from observer.commands.display import ESTIMATE_UNITS, print_warnings
     from observer.commands.outputs import check_input, check_outputs, write_bytes, write_text
     from observer.commands.run import format_estimate
     from observer.commands.trend import Trend, render_html, render_png
@@ -171,6 +171,13 @@ def main(args: argparse.Namespace) -> int:
         bar.close()
     summary = observer.health()
     print(json.dumps({"summary": summary["windows"]}), file=sys.stderr)
+    if not summary["windows"].get("estimated"):
+        # Exit 0 and an empty summary read as "fine": say that there is no answer, and why.
+        print_warnings("replay", [
+            f"{args.recording}: no window was estimated: a window is observer.window_s = "
+            f"{config.observer.window_s:g} s of samples (a shorter recording has none), and "
+            "windows with gaps or stuck sensors are skipped"
+        ])  # fmt: skip
     title = f"dcobserver trend of {Path(args.recording).name}"
     if args.report:
         write_text(args.report, render_html(trend, title=title, source=args.recording))

@@ -984,6 +984,7 @@ def diagnose(
     unknown = [n for n in names if n not in LIBRARY]
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; expected some of {list(LIBRARY)}")
+    split_segments(rec.n_samples, rec.dt, max_fit_samples)  # too short: say so before the fits
     baseline = fit_baseline(
         rec, n_particles=baseline_particles, iterations=baseline_iterations, seed=seed,
         chain=chain,

@@ -344,13 +344,13 @@ def split_segments(n: int, dt: float, max_fit_samples: int) -> tuple[np.ndarray,
     seg_len = int(round(min(max(duration / 40.0, 0.2), 0.5) / dt))
     seg_len = max(seg_len, 20)
     starts = np.arange(0, n - seg_len // 2, seg_len)
-    stops = np.minimum(starts + seg_len, n)
-    stops[-1] = n
-    if starts.size < 4:
+    if starts.size < 4:  # before stops[-1]: a recording shorter than half a segment has none
         raise EstimationError(
             f"recording too short for a diagnosis: {duration:.3g} s, need at least "
             f"{4 * seg_len * dt:.3g} s (four segments to fit and hold out)"
         )
+    stops = np.minimum(starts + seg_len, n)
+    stops[-1] = n
     fit = np.arange(starts.size) % 2 == 0
     n_fit = int(np.sum(stops[fit] - starts[fit]))
     if n_fit > max_fit_samples:

@@ -516,6 +516,21 @@ def test_a_config_file_not_in_utf8_is_one_line(p12, tmp_path):
     one_line_error(here("run", "--config", str(utf16), cwd=tmp_path), "utf16.toml", "UTF-8")
 
 
+def test_recordings_too_short_for_a_diagnosis_or_a_window_say_so(p12, tmp_path):
+    _, rec = p12
+    for n in (12, 120):  # diagnose: an IndexError for both (no fit segment at all)
+        short = tmp_path / f"short{n}.csv"
+        write_recording(Recording(rec.t[:n], {c: v[:n] for c, v in rec.signals.items()}), short)
+        one_line_error(
+            here("diagnose", str(short), "--quiet", cwd=tmp_path),
+            f"short{n}.csv", "too short for a diagnosis",
+        )  # fmt: skip
+    # replay: exit 0 and an empty summary said nothing about there being no answer.
+    res = here("replay", str(tmp_path / "short120.csv"), "--no-progress", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert "warning: " in res.stderr and "no window was estimated" in res.stderr
+
+
 def test_an_empty_or_foreign_mcap_is_one_line_naming_what_it_holds(tmp_path):
     from mcap.writer import Writer
 
