@@ -190,7 +190,8 @@ def hold_or_smooth(
     A drive that reports the voltage it holds for each period is described
     exactly by ``hold``; a voltage measured through a filter by ``smooth``.
     A voltage that shows a converter's jumps (:data:`CONVERTER_TRANSITIONS`) is
-    measured: ``smooth``. Otherwise the samples alone do not say which; the current does. A smooth fit whose
+    measured: ``smooth``. Otherwise the samples alone do not say which; the
+    current does. A smooth fit whose
     shift is half a period early (:data:`HOLD_SHIFT`) is a hold in disguise:
     it beats hold only by averaging the voltage's noise (an errors-in-variables
     effect, not a better model). Otherwise ``smooth`` is kept when it explains
