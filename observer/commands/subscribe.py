@@ -36,8 +36,8 @@ LEGEND = (
     "h: held, ?: unconfirmed, c: change being confirmed, o: outlier, -: none; "
     "±%: relative std of the value; speeds rad/s, !: tachometer fault, n: no speed channel"
 )
-#: What K is (the daemon publishes K alone: kPhi needs the field current, which it does not).
-K_NOTE = K_EXPLAINED.format(at="")
+#: What K is; the lines view shows kPhi at the window's mean field current beside it.
+K_NOTE = K_EXPLAINED.format(at=" at the window's mean field current")
 #: (column title, circuit, parameter) of the values shown (each cell with its unit).
 VALUES = (
     ("Rf", "field", "R"),
@@ -195,7 +195,15 @@ def format_line(key_expr: str, message: dict[str, Any]) -> str:
     t = message.get("t_ns", 0) / 1e9
     cells = " ".join(_value(message, c, p) for _title, c, p in VALUES)
     temps = f"{_temperature(message, 'field'):>6} {_temperature(message, 'armature'):>6}"
-    return f"{head} {t:>9.2f} {cells} {temps} {_speeds(message)}"
+    return f"{head} {t:>9.2f} {cells} {temps} {_speeds(message)} {_kphi(message)}"
+
+
+def _kphi(e: dict[str, Any]) -> str:
+    """``kPhi 1.2964 V*s/rad``: K at the window's field current (the data-sheet figure)."""
+    kphi = (e.get("armature") or {}).get("kphi")
+    if not isinstance(kphi, int | float) or isinstance(kphi, bool):
+        return "kPhi -"
+    return f"kPhi {eng(kphi, 'V*s/rad', 5)}"
 
 
 @dataclass

@@ -100,6 +100,13 @@ _CIRCUIT_SCHEMA: dict[str, Any] = {
         "R": {**_PARAM, "description": "Resistance (ohm)."},
         "L": {**_PARAM, "description": "Inductance (H)."},
         "K": {**_PARAM, "description": "EMF constant (V*s/(rad*A)); armature only."},
+        "kphi": {
+            **_PARAM,
+            "description": "K times the window's mean field current: the EMF constant at the "
+            "present field (V*s/rad), as a data sheet gives it; armature only.",
+        },
+        "kphi_std": {**_PARAM, "description": "One-sigma of kphi (V*s/rad)."},
+        "if_mean": {**_PARAM, "description": "The window's mean field current (A)."},
         "rms": {**_PARAM, "description": "RMS current error of the window's fit (A)."},
         "std": {
             "type": "object",

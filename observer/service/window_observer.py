@@ -347,6 +347,8 @@ class SlidingWindowObserver:
         )  # fmt: skip
         for circuit, est in fits.items():
             out[circuit] = self._circuit_output(circuit, est, step)
+            if circuit == "armature":
+                out[circuit].update(_kphi(out[circuit], signals["if"]))
             if est is None:
                 out[circuit]["error"] = next(
                     (f.split(": ", 1)[1] for f in flags if f.startswith(f"{circuit}: ")), ""
@@ -770,3 +772,18 @@ def _synthetic_windings(
         s + 0.002 * float(r) * rng.standard_normal(n) for s, r in zip(signals, rated, strict=True)
     )
     return va, ia, vf, i_f, omega
+
+
+def _kphi(armature: dict[str, Any], field_current: np.ndarray) -> dict[str, float | None]:
+    """kPhi = K * if at the window's mean field current (V*s/rad), the EMF constant at the
+    present field that a motor's data sheet gives, and its one-sigma (the field current's
+    own error left out: its sensor's, a fraction of a percent)."""
+    k, k_std = armature.get("K"), armature.get("std", {}).get("K")
+    i_f = float(np.nanmean(field_current)) if field_current.size else math.nan
+    if k is None or not math.isfinite(i_f):
+        return {"kphi": None, "kphi_std": None, "if_mean": _finite_or_none(i_f)}
+    return {
+        "kphi": _finite_or_none(k * i_f),
+        "kphi_std": None if k_std is None else _finite_or_none(abs(k_std * i_f)),
+        "if_mean": _finite_or_none(i_f),
+    }

@@ -315,6 +315,16 @@ def test_every_json_says_its_units(p12, tmp_path):
     assert res.returncode == 0, res.stderr
     lines = [json.loads(line) for line in res.stdout.splitlines()]
     assert lines and all(line["units"]["R"] == "ohm" for line in lines)
+    # The daemon's estimates carry kPhi at the window's field current, as estimate's do.
+    armatures = [line["armature"] for line in lines if (line.get("armature") or {}).get("K")]
+    assert armatures
+    for a in armatures:
+        assert a["kphi"] == pytest.approx(a["K"] * a["if_mean"])
+        assert a["kphi_std"] == pytest.approx(a["std"]["K"] * abs(a["if_mean"]))
+    from observer.commands.subscribe import format_line
+
+    line = format_line("dcobserver/demo/estimate", {"drive_id": "demo", **lines[-1]})
+    assert re.search(r"kPhi \d[\d.]* V\*s/rad$", line), line
 
 
 def test_replay_trend_report_renders_and_png_is_written(tmp_path):
