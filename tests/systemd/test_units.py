@@ -140,7 +140,10 @@ def test_the_daemon_runs_its_serial_adapter_and_zenoh_under_the_units_filter(tmp
         assert sub.proc.wait(90) == 0, "".join(sub.stderr[-5:])
         estimates = [json.loads(x) for x in sub.stdout if x.startswith("{")]
         assert len(estimates) == 3, sub.stdout
-        assert all(e["field"]["R"] is not None for e in estimates), estimates[-1]
+        # Every window fitted the field (its own fit: the tracked value is published only once
+        # a window's std passes the quality limit, which behind the fake drive's field bridge
+        # may take a few windows).
+        assert all(e["field"]["raw"]["R"] is not None for e in estimates), estimates[-1]
         assert daemon.proc.poll() is None, "".join(daemon.stderr[-10:])
     finally:
         drive.kill()
