@@ -139,9 +139,14 @@ class Switching:
         return self.clean_share >= MIN_SWITCHED_SHARE
 
     @property
+    def transition_mask(self) -> np.ndarray:
+        """Per interval: inside a transition (``transitions``, else the ``jumps`` alone)."""
+        return self.transitions if self.transitions is not None else self.jumps
+
+    @property
     def transition_share(self) -> float:
         """Share of intervals inside a transition (a jump and the samples still settling)."""
-        t = self.transitions if self.transitions is not None else self.jumps
+        t = self.transition_mask
         return float(np.count_nonzero(t)) / max(t.shape[0], 1)
 
 
@@ -255,10 +260,11 @@ def alias_factor(
     return float(min(0.5, np.sum(h / (np.pi * m))))
 
 
-def alias_bias_bound(v: np.ndarray, sw: Switching, factor: float) -> float:
+def alias_bias_bound(v: np.ndarray, transitions: np.ndarray, factor: float) -> float:
     """Bound (V) on the error of the window's mean voltage that sampled jumps leave.
 
-    Each run of transition intervals (a jump and its settling) carries the
+    ``transitions`` marks the intervals of ``v`` in a transition
+    (:attr:`Switching.transition_mask`). Each run of them (a jump and its settling) carries the
     jump ``J`` from the sample before it to the sample after it, and errs the
     sample mean by up to ``factor*|J|/n`` (:func:`alias_factor`). Jumps that
     keep their place between samples (a steady bridge whose mains period is
@@ -267,13 +273,12 @@ def alias_bias_bound(v: np.ndarray, sw: Switching, factor: float) -> float:
     up; jumps that wander over the interval err with random signs and add in
     quadrature. A voltage without transitions: 0.
     """
-    t = sw.transitions if sw.transitions is not None else sw.jumps
     n = v.shape[0]
-    if n < 2 or not np.any(t):
+    if n < 2 or not np.any(transitions):
         return 0.0
     # A settling jump can leave a sample or two on its smooth curve by chance: runs so close
     # belong to one jump.
-    t = t.copy()
+    t = transitions.copy()
     for g in np.flatnonzero(t[:-1] & ~t[1:]) + 1:  # the first interval of each gap
         for width in (1, 2):
             if g + width < t.shape[0] and t[g + width]:
@@ -503,7 +508,7 @@ def build_input(
     sw = switching
     if model == "switched":
         sw = switching if switching is not None else find_switching(v)
-        segments = segments_between(sw.transitions if sw.transitions is not None else sw.jumps)
+        segments = segments_between(sw.transition_mask)
     else:
         segments = Segments.whole(n)
     if valid is not None:
@@ -515,9 +520,7 @@ def build_input(
     return InputModel(model, smooth_moments(v, segments, shift), segments, shift, sw)
 
 
-def choose_model(
-    v: np.ndarray, requested: str = "auto", *, winding: str = "armature"
-) -> tuple[str, Switching]:
+def choose_model(v: np.ndarray, requested: str = "auto") -> tuple[str, Switching]:
     """The intersample model for voltage samples ``v``: ``requested``, or decided from the data.
 
     ``auto``: ``switched`` when the voltage shows clean jumps (an unfiltered
@@ -528,7 +531,7 @@ def choose_model(
     between samples); the uncertainty carries that bound
     (:func:`alias_bias_bound`) rather than segmenting, which leaves the
     field's resistance to short segments that pin it worse (-1.6 % at 0.6 %
-    std against -0.4 % on the same windows). ``winding`` is kept for callers.
+    std against -0.4 % on the same windows), for the field and the armature alike.
     ``hold`` is never chosen here: only the current can tell a held
     voltage from a sampled one (see :func:`observer.estimation.stages.hold_or_smooth`).
     """

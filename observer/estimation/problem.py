@@ -229,14 +229,8 @@ class WindingProblem:
 
     def alias_pieces(self) -> list[tuple[slice, float]]:
         """The window's pieces (slices of intervals) and each one's :attr:`alias_v` bound."""
-        n = self.inp.mu.shape[0]
-        bounds = self.alias_v
-        edges = np.linspace(0, n, len(bounds) + 1).astype(int)
-        return [
-            (slice(int(a), int(b)), float(v))
-            for a, b, v in zip(edges[:-1], edges[1:], bounds, strict=True)
-            if v > 0.0
-        ]
+        pieces = alias_pieces(self.inp.mu.shape[0])
+        return [(where, v) for where, v in zip(pieces, self.alias_v, strict=True) if v > 0.0]
 
     def best_k(self, resistance: float, inductance: float, shift: float) -> float:
         """``K`` solved in closed form at ``(R, L, shift)`` (the held value if held)."""
@@ -269,6 +263,12 @@ class WindingProblem:
 
 #: Pieces of a window whose voltage errors from aliasing are bounded separately.
 ALIAS_PIECES = 4
+
+
+def alias_pieces(n_intervals: int) -> list[slice]:
+    """The :data:`ALIAS_PIECES` equal pieces of a window's ``n_intervals`` intervals."""
+    edges = np.linspace(0, n_intervals, ALIAS_PIECES + 1).astype(int)
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
 def make_problem(
@@ -337,11 +337,10 @@ def make_problem(
             None if known_v is None else functools.partial(known_v.response, sample_rate_hz=1 / dt),
             1.0 / dt,
         )
-        t = sw.transitions if sw.transitions is not None else sw.jumps
-        edges = np.linspace(0, t.shape[0], ALIAS_PIECES + 1).astype(int)
+        t = sw.transition_mask
         alias_v = tuple(
-            alias_bias_bound(raw_voltage[a : b + 1], Switching(t[a:b], 0.0, 0.0, t[a:b]), factor)
-            for a, b in zip(edges[:-1], edges[1:], strict=True)
+            alias_bias_bound(raw_voltage[p.start : p.stop + 1], t[p], factor)
+            for p in alias_pieces(t.shape[0])
         )
     inp = build_input(voltage, model, shift=shift, switching=switching, valid=valid)  # type: ignore[arg-type]
     problem = WindingProblem(

@@ -390,20 +390,19 @@ def std_stage(
         # the front end leave (aliasing; locked to the samples on a steady
         # bridge, so it does not average out over the window).
         k = 3 if problem.fits_k else 2
-
-        def bias(col: np.ndarray, volts: float) -> np.ndarray:
-            sensitivity = np.linalg.lstsq(fit.jacobian, col, rcond=None)[0]
-            return np.abs(sensitivity[:k]) * volts
-
-        offset[:k] = bias(column, OFFSET_SHARE * float(np.mean(np.abs(problem.voltage))))
         pieces = problem.alias_pieces()
+        columns = [column] + [problem.offset_column(theta, where) for where, _ in pieces]
+        # The parameters' moves per volt of each error (one solve for every column).
+        per_volt = np.abs(
+            np.linalg.lstsq(fit.jacobian, np.column_stack(columns), rcond=None)[0][:k]
+        )
+        offset[:k] = per_volt[:, 0] * OFFSET_SHARE * float(np.mean(np.abs(problem.voltage)))
         if pieces:
             # The same error over the whole window (a steady bridge) or one per piece
             # (the firing angle moves): whichever moves the parameter more.
-            steady = bias(column, float(np.sqrt(np.mean(np.square(problem.alias_v)))))
-            each = np.sqrt(
-                sum(bias(problem.offset_column(theta, where), v) ** 2 for where, v in pieces)
-            )
+            steady = per_volt[:, 0] * float(np.sqrt(np.mean(np.square(problem.alias_v))))
+            volts = np.array([v for _, v in pieces])
+            each = np.sqrt(np.sum((per_volt[:, 1:] * volts) ** 2, axis=1))
             offset[:k] = np.hypot(offset[:k], np.maximum(steady, each))
         offset[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
     std = crlb_std(jac, fit.point.residual, tau_samples)

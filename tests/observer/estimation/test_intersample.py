@@ -76,14 +76,14 @@ def test_a_filtered_bridge_voltage_has_no_clean_jump():
     tau = 1 / (2 * np.pi * FS / 4)
     armature = first_order(bridge_voltage(t), 1 / (FS * fine), tau)[::fine]
     assert not find_switching(armature).switched
-    assert choose_model(armature, winding="armature")[0] == "smooth"
+    assert choose_model(armature)[0] == "smooth"
     field = first_order(field_bridge_voltage(t), 1 / (FS * fine), tau)[::fine]
     sw = find_switching(field)
     assert not sw.switched
     # The field's transitions are seen (runs of intervals, not clean jumps).
     assert sw.transition_share >= sw.jumps.mean() > 0.005
     # Filtered: read smooth, the jumps' aliasing carried by the uncertainty (next test).
-    assert choose_model(field, winding="field")[0] == "smooth"
+    assert choose_model(field)[0] == "smooth"
 
 
 @pytest.mark.parametrize("alpha_deg", [35.0, 50.0, 65.0, 80.0])
@@ -108,7 +108,7 @@ def test_the_alias_bound_covers_the_sample_mean_error_of_a_locked_bridge(alpha_d
         samples = v_fine[::fine]
         actual = abs(samples.mean() - v_fine.mean())
         offset = 0.001 * abs(v_fine.mean())
-        bound = alias_bias_bound(samples, find_switching(samples), factor)
+        bound = alias_bias_bound(samples, find_switching(samples).transition_mask, factor)
         assert actual <= math.hypot(bound, offset), phase
         worst = max(worst, actual)
     assert bound <= 4 * worst + offset
