@@ -61,16 +61,18 @@ FRONT_ENDS: dict[str, tuple[str, str, bool]] = {
 }
 
 
+def front_end_of(job: dict[str, Any]) -> str:
+    """A case's front end (rows written before there were several: ``butter2``)."""
+    return str(job.get("front_end", "butter2"))
+
+
 def front_end_drive(drive: Any, front_end: str) -> Any:
     """``drive`` with front end ``front_end`` (:data:`FRONT_ENDS`) on its channels."""
     from observer.config import parse_filter
-    from observer.simulation.chain import apply_per_channel
+    from observer.simulation.chain import CHANNELS, apply_per_channel
 
     voltage, current = FRONT_ENDS[front_end][:2]
-    changes = {
-        ch: parse_filter(voltage if ch in ("va", "vf") else current)
-        for ch in ("va", "ia", "vf", "if", "omega")
-    }
+    changes = {ch: parse_filter(voltage if ch in ("va", "vf") else current) for ch in CHANNELS}
     return drive.replace(chain=apply_per_channel(drive.chain, changes))
 
 
@@ -92,7 +94,7 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     from observer.simulation.simulate import simulate
 
     motor = MOTORS[job["motor"]]
-    front_end = job.get("front_end", "butter2")
+    front_end = front_end_of(job)
     drive = front_end_drive(drive_spec(job["drive"]), front_end)
     t0 = time.perf_counter()
     rec = simulate(
@@ -142,7 +144,7 @@ def jobs(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 def _key(job: dict[str, Any]) -> tuple[Any, ...]:
     return (
-        job["motor"], job.get("front_end", "butter2"), job["rate"], job["drive"], job["seed"],
+        job["motor"], front_end_of(job), job["rate"], job["drive"], job["seed"],
         job["duration"], job["noise"],
     )  # fmt: skip
 
@@ -156,7 +158,7 @@ def table(rows: list[dict[str, Any]]) -> str:
     ]
 
     def case(r: dict[str, Any]) -> tuple[Any, ...]:
-        return (r["motor"], r.get("front_end", "butter2"), r["rate"], r["drive"])
+        return (r["motor"], front_end_of(r), r["rate"], r["drive"])
 
     for motor, front_end, rate, drive in sorted({case(r) for r in rows}):
         cell = [r for r in rows if case(r) == (motor, front_end, rate, drive)]

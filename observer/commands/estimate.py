@@ -122,6 +122,7 @@ def main(args: argparse.Namespace) -> int:
         estimate_recording,
         identify,
     )
+    from observer.estimation.result import kphi
 
     config = load_config(args.config) if args.config else Config()
     settings = config.estimate
@@ -168,8 +169,7 @@ def main(args: argparse.Namespace) -> int:
         d["not_identified"] = dict(idents[name].reasons)
         if name == "armature" and if_mean is not None and est.emf_constant_h is not None:
             d["if_mean"] = if_mean
-            d["kphi"] = est.emf_constant_h * if_mean
-            d["kphi_std"] = est.std.get("K", math.nan) * abs(if_mean)
+            d["kphi"], d["kphi_std"] = kphi(est.emf_constant_h, est.std.get("K", math.nan), if_mean)
         report[name] = d
     truth = rec.metadata.get("motor")
     if args.json:

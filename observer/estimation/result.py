@@ -110,3 +110,10 @@ class CircuitEstimate:
             "L": list(self.search_range.inductance_h),
         }
         return out
+
+
+def kphi(emf_constant_h: float, std_h: float, field_current_a: float) -> tuple[float, float]:
+    """kPhi = K*if (V*s/rad): the EMF constant at field current ``field_current_a``, the figure
+    a motor's data sheet gives, and its one-sigma from K's (the field current's own error, a
+    sensor's fraction of a percent, left out)."""
+    return emf_constant_h * field_current_a, abs(std_h * field_current_a)

@@ -64,6 +64,7 @@ from observer.estimation import (
 )
 from observer.estimation.frontend import winding_front_ends
 from observer.estimation.motor import MotorParameters
+from observer.estimation.result import kphi
 from observer.service.ringbuffer import RingBuffer, Window
 from observer.service.speed import SpeedEstimate, TachometerCheck, emf_speed
 from observer.service.tracker import (
@@ -775,15 +776,11 @@ def _synthetic_windings(
 
 
 def _kphi(armature: dict[str, Any], field_current: np.ndarray) -> dict[str, float | None]:
-    """kPhi = K * if at the window's mean field current (V*s/rad), the EMF constant at the
-    present field that a motor's data sheet gives, and its one-sigma (the field current's
-    own error left out: its sensor's, a fraction of a percent)."""
+    """kPhi of the tracked K at the window's mean field current
+    (:func:`observer.estimation.result.kphi`), with that current."""
     k, k_std = armature.get("K"), armature.get("std", {}).get("K")
     i_f = float(np.nanmean(field_current)) if field_current.size else math.nan
     if k is None or not math.isfinite(i_f):
         return {"kphi": None, "kphi_std": None, "if_mean": _finite_or_none(i_f)}
-    return {
-        "kphi": _finite_or_none(k * i_f),
-        "kphi_std": None if k_std is None else _finite_or_none(abs(k_std * i_f)),
-        "if_mean": _finite_or_none(i_f),
-    }
+    value, std = kphi(k, math.nan if k_std is None else k_std, i_f)
+    return {"kphi": _finite_or_none(value), "kphi_std": _finite_or_none(std), "if_mean": i_f}

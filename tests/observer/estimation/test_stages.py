@@ -42,6 +42,14 @@ def _bounds(window):
     )
 
 
+def _polished(window, model, seed):
+    """The window's problem under ``model``, its swarm result (seeded) and the polished fit."""
+    problem = _problem(window, model)
+    bounds = _bounds(window)
+    result = swarm_stage(problem, bounds, SETTINGS, np.random.default_rng(seed))
+    return problem, result, polish_stage(problem, result, bounds)
+
+
 def test_the_stages_in_order_are_estimate_armature(window):
     problem = _problem(window, "hold")
     bounds = _bounds(window)
@@ -63,10 +71,7 @@ def test_the_stages_in_order_are_estimate_armature(window):
 
 
 def test_polish_lowers_the_swarms_residual(window):
-    problem = _problem(window, "hold")
-    bounds = _bounds(window)
-    result = swarm_stage(problem, bounds, SETTINGS, np.random.default_rng(4))
-    fit = polish_stage(problem, result, bounds)
+    problem, result, fit = _polished(window, "hold", 4)
     r, ell = 10.0**result.x
     k = problem.best_k(r, ell, 0.0)
     swarm_residual, _ = problem.evaluate(r, ell, k, 0.0)
@@ -75,10 +80,7 @@ def test_polish_lowers_the_swarms_residual(window):
 
 
 def test_without_corrections_the_uncertainty_is_the_sandwich_bound(window):
-    problem = _problem(window, "hold")
-    bounds = _bounds(window)
-    result = swarm_stage(problem, bounds, SETTINGS, np.random.default_rng(5))
-    fit = polish_stage(problem, result, bounds)
+    problem, _, fit = _polished(window, "hold", 5)
     std = std_stage(problem, fit, EivCorrection(fit.point, 0.0, np.zeros(3)))
     tau_samples = np.exp(fit.theta[1] - fit.theta[0]) / window["dt"]
     bound = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
@@ -89,10 +91,7 @@ def test_without_corrections_the_uncertainty_is_the_sandwich_bound(window):
 
 def test_a_measured_voltage_adds_an_unknown_offset_and_the_model_floor(window):
     """A held voltage is the drive's reference (above); a measured one has an offset."""
-    problem = _problem(window, "smooth")
-    bounds = _bounds(window)
-    result = swarm_stage(problem, bounds, SETTINGS, np.random.default_rng(5))
-    fit = polish_stage(problem, result, bounds)
+    problem, _, fit = _polished(window, "smooth", 5)
     std = std_stage(problem, fit, EivCorrection(fit.point, 0.0, np.zeros(3)))
     tau_samples = np.exp(fit.theta[1] - fit.theta[0]) / window["dt"]
     column = problem.offset_column(fit.theta)
@@ -112,11 +111,7 @@ def test_a_measured_voltage_adds_an_unknown_offset_and_the_model_floor(window):
 
 
 def test_the_offset_column_is_the_residuals_change_per_volt(window):
-    problem = _problem(window, "hold")
-    bounds = _bounds(window)
-    fit = polish_stage(
-        problem, swarm_stage(problem, bounds, SETTINGS, np.random.default_rng(6)), bounds
-    )
+    problem, _, fit = _polished(window, "hold", 6)
     raised = armature_problem(
         window["va"] + 1.0, window["ia"], window["if"], window["omega"], window["dt"],
         intersample="hold",
