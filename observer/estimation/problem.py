@@ -229,6 +229,8 @@ class WindingProblem:
 
     def alias_pieces(self) -> list[tuple[slice, float]]:
         """The window's pieces (slices of intervals) and each one's :attr:`alias_v` bound."""
+        if not self.alias_v:  # no smooth reconstruction of jumps: nothing aliased
+            return []
         pieces = alias_pieces(self.inp.mu.shape[0])
         return [(where, v) for where, v in zip(pieces, self.alias_v, strict=True) if v > 0.0]
 
