@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -22,8 +23,10 @@ CHECK_SAMPLES = 20_000
 
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "recording", metavar="FILE", help=".mcap (a recording or daemon log) or .csv"
-    )
+        "recording", metavar="FILE", nargs="+",
+        help=".mcap (a recording or daemon log) or .csv; several, a folder or a glob: one "
+        "table of every window's estimate (see below)",
+    )  # fmt: skip
     parser.add_argument(
         "--config", metavar="TOML", default=None,
         help="take [observer] (windows, seed, swarm, quality) from this file "
@@ -39,17 +42,26 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--png", metavar="OUT.png", default=None, help="write the trend report's figure as PNG"
     )
+    from observer.commands.archive import add_options
+
+    add_options(
+        parser,
+        "every window's estimate (the columns: each key of --json's estimates, nested keys "
+        "dotted, as field.R or armature.std.K; not elapsed_ms, the time the window took)",
+    )
 
 
-def _prefix(path: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """The first :data:`CHECK_SAMPLES` samples of the file: t (s) and channels (SI)."""
+def _prefix(path: str) -> tuple[np.ndarray, dict[str, np.ndarray], Mapping[str, Any]]:
+    """The first :data:`CHECK_SAMPLES` samples of the file: t (s), channels (SI), and the
+    recording's metadata."""
     from observer.cli import UserError
+    from observer.commands.archive import mcap_metadata
     from observer.recording import RecordingError, read_recording
 
     if not path.lower().endswith(".mcap"):
         rec = read_recording(path)
         n = min(rec.n_samples, CHECK_SAMPLES)
-        return rec.t[:n], {c: np.asarray(v[:n]) for c, v in rec.signals.items()}
+        return rec.t[:n], {c: np.asarray(v[:n]) for c, v in rec.signals.items()}, rec.metadata
     from replay.source import iter_mcap_blocks
 
     times: list[np.ndarray] = []
@@ -79,20 +91,22 @@ def _prefix(path: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
             raise UserError(str(exc)) from None
         raise UserError(f"{path}: no sample block can be read (damaged before the first one)")
     t = np.concatenate(times) / 1e9
-    return t, {c: np.concatenate(v) for c, v in parts.items() if len(v) == len(times)}
+    signals = {c: np.concatenate(v) for c, v in parts.items() if len(v) == len(times)}
+    return t, signals, mcap_metadata(path)
 
 
-def _check(path: str, config: Any) -> list[str]:
-    """Warnings about the file's first seconds; a one-line error if it cannot be a motor's."""
+def _check(path: str, config: Any, *, defer: bool = False) -> tuple[list[str], Mapping[str, Any]]:
+    """Warnings about the file's first seconds (printed unless ``defer``) and the file's
+    metadata; a one-line error if it cannot be a motor's."""
     from observer.commands.display import report_findings
     from observer.estimation import CIRCUIT_CHANNELS, check_data
 
-    t, signals = _prefix(path)
+    t, signals, metadata = _prefix(path)
     finite = np.isfinite(t)
     steps = np.diff(t[finite])
     steps = steps[steps > 0]
     if steps.size == 0:
-        return []
+        return [], metadata
     wanted = config.observer.circuits
     circuits = [
         c
@@ -103,7 +117,56 @@ def _check(path: str, config: Any) -> list[str]:
     findings = check_data(clean, float(np.median(steps)), circuits, t=t[finite])
     # A log may hold gaps and stuck stretches: the observer skips those windows itself.
     findings = [f for f in findings if f.code not in ("stuck", "too_short")]
-    return report_findings("replay", findings, path=path, units_option=False)
+    warnings = report_findings("replay", findings, path=path, units_option=False, defer=defer)
+    return warnings, metadata
+
+
+def _source(path: str) -> Any:
+    """The replay source of ``path``, as fast as it reads (one code path for one file and
+    for many)."""
+    from replay.source import ReplayOptions, ReplaySource
+
+    return ReplaySource(ReplayOptions(path=path, speed=0.0, block_s=0.1))
+
+
+def _nothing_estimated(path: str, config: Any) -> str:
+    return (
+        f"{path}: no window was estimated: a window is observer.window_s = "
+        f"{config.observer.window_s:g} s of samples (a shorter recording has none), and "
+        "windows with gaps or stuck sensors are skipped"
+    )
+
+
+def window_rows(path: str, config: Any) -> tuple[list[dict[str, Any]], list[str]]:
+    """Every estimated window of one recording as a table row, and its warnings.
+
+    The work of ``dcobserver replay FILE`` (same checks, source, observer and ids),
+    for :func:`observer.commands.archive.run_files`: a row is the window's
+    ``--json`` line flattened (:func:`~observer.commands.archive.flatten`) without
+    ``elapsed_ms`` and ``units``.
+
+    Raises
+    ------
+    observer.cli.UserError
+        (and the readers' errors) for a file that is not a usable recording.
+    """
+    from observer.commands.archive import flatten, recording_ids
+    from observer.service.daemon import run_offline
+
+    warnings, metadata = _check(path, config, defer=True)
+    ids = recording_ids(path, config, metadata)
+    rows: list[dict[str, Any]] = []
+
+    def on_result(result: Any) -> None:
+        if result.estimate is not None:
+            estimate = {**ids, **result.estimate}
+            estimate.pop("elapsed_ms", None)
+            rows.append(flatten(estimate))
+
+    observer = run_offline(config, _source(path), on_result=on_result)
+    if not observer.health()["windows"].get("estimated"):
+        warnings.append(_nothing_estimated(path, config))
+    return rows, warnings
 
 
 class _Tap:
@@ -129,6 +192,7 @@ class _Tap:
 def main(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from observer.commands.archive import recording_ids, run_table_command, wants_table
     from observer.commands.display import ESTIMATE_UNITS, print_warnings
     from observer.commands.outputs import check_input, check_outputs, write_bytes, write_text
     from observer.commands.run import format_estimate
@@ -138,21 +202,26 @@ def main(args: argparse.Namespace) -> int:
     from observer.service.mcaplog import to_json
     from observer.service.window_observer import WindowResult
     from observer.service.zenohconf import names
-    from replay.source import ReplayOptions, ReplaySource
 
     config = load_config(args.config) if args.config else Config()
-    check_input(args.recording)
-    check_outputs(("--report", args.report), ("--png", args.png), inputs=[args.recording])
-    _check(args.recording, config)
-    source: Any = ReplaySource(ReplayOptions(path=args.recording, speed=0.0, block_s=0.1))
+    if wants_table(args):
+        return run_table_command(
+            "replay", args, window_rows, config, progress=not args.no_progress,
+            one_file_options=("--json", "--report", "--png"), what="every window's estimate",
+        )  # fmt: skip
+    path = args.recording[0]
+    check_input(path)
+    check_outputs(("--report", args.report), ("--png", args.png), inputs=[path])
+    _, metadata = _check(path, config)
+    source: Any = _source(path)
     trend = Trend()
     if args.report or args.png:
         source = _Tap(source, lambda block: trend.add_block(block.t_ns, block.signals))
     bar = tqdm(
         unit="sample", unit_scale=True, disable=args.no_progress, file=sys.stderr,
-        desc=Path(args.recording).name,
+        desc=Path(path).name,
     )  # fmt: skip
-    ids = names(config.observer.drive_id, config.observer.motor_id)
+    ids = names(**recording_ids(path, config, metadata))
     units = ESTIMATE_UNITS
 
     def on_result(result: WindowResult) -> None:
@@ -173,14 +242,10 @@ def main(args: argparse.Namespace) -> int:
     print(json.dumps({"summary": summary["windows"]}), file=sys.stderr)
     if not summary["windows"].get("estimated"):
         # Exit 0 and an empty summary read as "fine": say that there is no answer, and why.
-        print_warnings("replay", [
-            f"{args.recording}: no window was estimated: a window is observer.window_s = "
-            f"{config.observer.window_s:g} s of samples (a shorter recording has none), and "
-            "windows with gaps or stuck sensors are skipped"
-        ])  # fmt: skip
-    title = f"dcobserver trend of {Path(args.recording).name}"
+        print_warnings("replay", [_nothing_estimated(path, config)])
+    title = f"dcobserver trend of {Path(path).name}"
     if args.report:
-        write_text(args.report, render_html(trend, title=title, source=args.recording))
+        write_text(args.report, render_html(trend, title=title, source=path))
     if args.png:
         write_bytes(args.png, render_png(trend, title=title))
     return 0
