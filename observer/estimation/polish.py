@@ -38,6 +38,8 @@ def levenberg_marquardt(
     max_iterations: int = 30,
     rtol: float = 1e-8,
     step_tol: float = 1e-9,
+    start: tuple[np.ndarray, np.ndarray] | None = None,
+    fixed_jacobian: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimise ``|residual(theta)|^2``; return ``theta``, residual and Jacobian there.
 
@@ -45,6 +47,13 @@ def levenberg_marquardt(
     are kept inside ``[lower, upper]`` (the swarm's search range): in a window
     that does not identify a parameter the cost is flat along it, and an
     unbounded step would run ``log L`` to overflow.
+
+    ``start``, the residual and Jacobian at ``theta`` when the caller has them,
+    saves their evaluation. With ``fixed_jacobian`` that Jacobian serves every
+    step (the chord method: one residual per step instead of ``1 + 2p``) and
+    is the one returned: for a refit that moves ``theta`` by little, where the
+    sensitivities barely change (see
+    :func:`observer.estimation.stages.specification_stage`).
     """
     lo = np.full(theta.size, -np.inf) if lower is None else lower
     hi = np.full(theta.size, np.inf) if upper is None else upper
@@ -57,9 +66,12 @@ def levenberg_marquardt(
             return None
         return r_ if np.all(np.isfinite(r_)) else None
 
-    r = residual(theta)
+    if start is not None:
+        r, jac = start
+    else:
+        r = residual(theta)
+        jac = jacobian(residual, theta)
     cost = float(r @ r)
-    jac = jacobian(residual, theta)
     damping = 1e-3
     for _ in range(max_iterations):
         jtj = jac.T @ jac
@@ -90,7 +102,8 @@ def levenberg_marquardt(
         relative_gain = (cost - cost_trial) / max(cost, 1e-300)
         moved = float(np.max(np.abs(trial - theta) / np.maximum(np.abs(theta), 1.0)))
         theta, r, cost = trial, r_trial, cost_trial
-        jac = jacobian(residual, theta)
+        if not fixed_jacobian:
+            jac = jacobian(residual, theta)
         damping = max(damping / 10, 1e-9)
         # Converged, or creeping along a direction the window does not identify
         # (flat cost, e.g. Lf under constant field voltage): more steps buy nothing.

@@ -21,9 +21,12 @@ the winding temperatures and the EMF speed come from the tracked state.
 Warm start: each circuit's swarm starts from the tracked ``(R, L)``, most
 particles inside ``around(R, L, factor)`` of the full data-derived range and a
 fraction ``explore_fraction`` spread over the whole range, so a real change is
-caught. ``factor`` shrinks while the fits agree with the tracked state and
-widens (and the next window runs the cold, larger swarm) when the fit degrades
-or differs by more than ``[observer.agree]``.
+caught. While ``L`` is not tracked (a field whose voltage has not stepped: the
+window barely depends on ``L``), the last window's fitted ``L`` stands in once
+``R`` is, instead of a cold swarm in every window. ``factor`` shrinks while the
+fits agree with the tracked state and widens (and the next window runs the
+cold, larger swarm) when the fit degrades or differs by more than
+``[observer.agree]``.
 
 Measurement chain: each circuit's intersample model (how the voltage behaves
 between samples, :mod:`observer.estimation.intersample`) and the relative delay
@@ -93,6 +96,9 @@ class _Search:
 
     factor: float | None = None  # None: next window runs cold over the full range
     warm: bool = False  # whether the last window was warm-started
+    # The last window's fitted L: the warm start's L while none is tracked (a
+    # field before its voltage steps), where the cost barely depends on L.
+    last_l: float | None = None
     rms_history: deque[float] = field(default_factory=lambda: deque(maxlen=20))
 
 
@@ -406,6 +412,8 @@ class SlidingWindowObserver:
         init = None
         names = CIRCUIT_NAMES[circuit]
         r_prev, l_prev = self.tracker.value(names["R"]), self.tracker.value(names["L"])
+        if l_prev is None:
+            l_prev = search.last_l
         warm = search.factor is not None and r_prev is not None and l_prev is not None
         if warm:
             assert search.factor is not None and r_prev is not None and l_prev is not None
@@ -430,6 +438,8 @@ class SlidingWindowObserver:
             est = estimate_armature(s["va"], s["ia"], s["if"], s["omega"], dt, **kwargs)
         self._learn_chain(circuit, est)
         search.warm = warm
+        if math.isfinite(est.inductance_h) and est.inductance_h > 0:
+            search.last_l = est.inductance_h
         self._update_search(circuit, search, est, warm)
         return est
 

@@ -106,6 +106,29 @@ def test_constant_field_voltage_holds_field_inductance(p12_recording):
     assert field[-1]["rel_std"]["L"] > QualityConfig().L
 
 
+def test_a_field_inductance_not_yet_identified_does_not_keep_the_swarm_cold():
+    """Under a constant field voltage no window identifies Lf; once Rf is tracked the field
+    swarm is warm-started from it and the last window's Lf (the small swarm), not run cold
+    over the full range in every window."""
+    n = 12000
+    rng = np.random.default_rng(6)
+    rf = P12.field_resistance_ohm
+    vf = 220.0 + 0.4 * rng.standard_normal(n)
+    i_f = 220.0 / rf + 0.002 * rng.standard_normal(n)
+    block = SampleBlock(np.arange(n) * 500_000, {"vf": vf, "if": i_f})
+    _, results = _run([block], circuits="field")
+    field = [r.estimate["field"] for r in results]
+    assert all(f["L"] is None for f in field)  # Lf never tracked
+    warm = [f["warm"] for f in field]
+    assert True in warm, "the field swarm never warm-started"
+    first = warm.index(True)
+    # Warm from the window after the first that tracked Rf, and from then on.
+    assert field[first - 1]["quality"]["R"] == "ok" and all(warm[first:])
+    cold = FAST["cold_particles"] * (FAST["cold_iterations"] + 1)
+    assert all(f["evaluations"] < cold for f in field[first:])
+    assert field[-1]["R"] == pytest.approx(rf, rel=0.01)
+
+
 def test_held_parameter_is_carried_forward_by_the_tracker(p12_run):
     """A window that is no evidence for a parameter does not move it: inductances and
     K (random walks) keep their value exactly, resistances move by their tracked rate
