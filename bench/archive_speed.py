@@ -123,6 +123,7 @@ def run(folder: Path, table: Path, workers: int) -> tuple[float, float]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    shown = list(argv) if argv is not None else sys.argv[1:]
     args = parse_args(argv)
     if args.start_only:
         start_only(args.start_only)
@@ -152,7 +153,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     lines = [
         "# A fleet archive: serial against a local Dask cluster",
         "",
-        f"Made by `python -m bench.archive_speed{' ' + ' '.join(argv) if argv else ''}` on "
+        f"Made by `python -m bench.archive_speed{' ' + ' '.join(shown) if shown else ''}` on "
         f"{machine}; load average at the end {load}. {args.files} simulated P-12 recordings "
         f"of {args.duration:g} s at {args.rate:g} Hz ({data_s:.0f} s of data, {rows} windows "
         "estimated), `dcobserver replay FOLDER --table T.csv`, each run its own process; "
