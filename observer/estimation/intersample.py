@@ -307,6 +307,66 @@ def alias_bias_bound(v: np.ndarray, transitions: np.ndarray, factor: float) -> f
     return factor * total / n
 
 
+#: Mains frequencies a line-commutated converter's ripple is locked to (Hz).
+MAINS_HZ = (50.0, 60.0)
+
+#: Half-width of a mains harmonic's band: the grid's frequency wanders (a mine's
+#: own generators by up to ~0.5 %), plus the window's spectral leakage (bins).
+MAINS_DRIFT = 0.005
+MAINS_LEAKAGE_BINS = 2.0
+
+#: The fluctuation below this frequency (Hz) is the drive's control and the load, not ripple.
+RIPPLE_FLOOR_HZ = 20.0
+
+#: Harmonics up to this frequency (Hz) are looked at: a bridge's ripple lives in its lowest
+#: ones, and more bands would hold a larger share of mere noise.
+RIPPLE_CEILING_HZ = 2000.0
+
+
+def mains_ripple_share(v: np.ndarray, dt: float) -> float:
+    """Excess share of a voltage's fluctuation power at mains harmonics (the larger of 50/60 Hz).
+
+    A thyristor bridge's terminal voltage repeats every firing: its
+    fluctuation above the control's band sits at multiples of the mains
+    frequency (100/120 Hz for a single-phase bridge, 300/360 Hz for a
+    6-pulse one). A drive's held reference, or white noise, puts about the
+    bands' share of the spectrum there; a converter's measured terminals put
+    most of it there. The share is returned above the bands' own: 0 for a
+    flat spectrum, 1 for pure ripple. Harmonics below Nyquist and
+    :data:`RIPPLE_CEILING_HZ` only (aliases of higher ones land off the bands
+    unless the rate is a multiple of the mains).
+    """
+    x = np.asarray(v, dtype=np.float64)
+    n = x.shape[0]
+    if n < 16 or not np.all(np.isfinite(x)):
+        return 0.0
+    t = np.arange(n, dtype=np.float64)
+    x = x - np.polyval(np.polyfit(t, x, 1), t)
+    power = np.abs(np.fft.rfft(x * np.hanning(n))) ** 2
+    f = np.fft.rfftfreq(n, dt)
+    above = f >= RIPPLE_FLOOR_HZ
+    total = float(power[above].sum())
+    if not total > 0.0:
+        return 0.0
+    bin_hz = 1.0 / (n * dt)
+    nyquist = 0.5 / dt
+    best = 0.0
+    for mains in MAINS_HZ:
+        harmonics = np.arange(2.0, min(nyquist, RIPPLE_CEILING_HZ) / mains) * mains
+        if harmonics.size == 0:
+            continue
+        width = MAINS_DRIFT * harmonics + MAINS_LEAKAGE_BINS * bin_hz
+        nearest = np.abs(f[:, None] - harmonics[None, :]) <= width[None, :]
+        in_band = above & nearest.any(axis=1)
+        # What a flat spectrum would put in the bands, taken off (short windows' bands
+        # are wide): 0 for noise, 1 for pure ripple.
+        flat = float(np.count_nonzero(in_band)) / float(np.count_nonzero(above))
+        share = float(power[in_band].sum()) / total
+        if flat < 1.0:
+            best = max(best, (share - flat) / (1.0 - flat))
+    return best
+
+
 def segments_between(jumps: np.ndarray, min_length: int = MIN_SEGMENT) -> Segments:
     """Maximal runs of samples whose intervals hold no jump; short runs dropped."""
     n = jumps.shape[0] + 1

@@ -63,6 +63,10 @@ class WindingProblem:
         piece's mean voltage that jumps seen through the front end leave in the samples (V;
         :func:`~observer.estimation.intersample.alias_bias_bound`). It changes where the
         converter's firing angle does, so each piece errs on its own.
+    untold_front_end : bool
+        A measured voltage (``smooth``, ``switched``) whose channels' front ends are not
+        configured: their relative gain is unknown
+        (:func:`~observer.estimation.frontend.inductance_gain_bound`).
     """
 
     voltage: np.ndarray
@@ -75,6 +79,7 @@ class WindingProblem:
     fit_lag: bool = False
     lag: float = 0.0
     alias_v: tuple[float, ...] = ()
+    untold_front_end: bool = False
     _mu_emf: np.ndarray | None = field(default=None, repr=False)
     _mu_cache: dict[tuple[float, float], np.ndarray] = field(default_factory=dict, repr=False)
 
@@ -131,7 +136,7 @@ class WindingProblem:
         )
         return WindingProblem(
             self.voltage, self.current, self.dt, inp, self.emf, self.emf_constant,
-            self.fit_shift, self.fit_lag, lag_, self.alias_v,
+            self.fit_shift, self.fit_lag, lag_, self.alias_v, self.untold_front_end,
         )  # fmt: skip
 
     # ------------------------------------------------------------- the swarm
@@ -346,6 +351,7 @@ def make_problem(
         )
     inp = build_input(voltage, model, shift=shift, switching=switching, valid=valid)  # type: ignore[arg-type]
     problem = WindingProblem(
-        voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag, alias_v
-    )
+        voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag, alias_v,
+        untold_front_end=front_ends is None and model in ("smooth", "switched"),
+    )  # fmt: skip
     return problem.with_shift(shift, lag) if lag else problem

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from observer.estimation import intersample_kernels as ik
+from observer.estimation.frontend import inductance_gain_bound
+from observer.estimation.intersample import mains_ripple_share
 from observer.estimation.polish import jacobian, levenberg_marquardt
 from observer.estimation.problem import WindingProblem
 from observer.estimation.pso import CostFunction, ParticleSwarm, PSOResult
@@ -53,6 +55,12 @@ OFFSET_SHARE = 0.001
 #: converter's measured voltage, never a drive's held reference: a 6-pulse bridge at 5 kHz
 #: shows them in ~15 % of intervals, a reference only at its rare setpoint steps.
 CONVERTER_TRANSITIONS = 0.02
+
+#: A voltage with this share of its fluctuation at mains harmonics
+#: (:func:`~observer.estimation.intersample.mains_ripple_share`) is a line-commutated
+#: converter's measured terminals, even where a filter at 2 kHz hides the jumps
+#: themselves; a held reference or white noise puts about none there.
+CONVERTER_RIPPLE = 0.25
 
 #: A cubic read this many periods late imitates a held voltage (sample periods),
 #: within ``HOLD_SHIFT_WIDTH``.
@@ -189,19 +197,23 @@ def hold_or_smooth(
 
     A drive that reports the voltage it holds for each period is described
     exactly by ``hold``; a voltage measured through a filter by ``smooth``.
-    A voltage that shows a converter's jumps (:data:`CONVERTER_TRANSITIONS`) is
-    measured: ``smooth``. Otherwise the samples alone do not say which; the
-    current does. A smooth fit whose
-    shift is half a period early (:data:`HOLD_SHIFT`) is a hold in disguise:
-    it beats hold only by averaging the voltage's noise (an errors-in-variables
-    effect, not a better model). Otherwise ``smooth`` is kept when it explains
-    the current decisively better (:data:`SMOOTH_OVER_HOLD` residual variances).
+    A voltage that shows a converter's jumps (:data:`CONVERTER_TRANSITIONS`) or
+    its mains ripple (:data:`CONVERTER_RIPPLE`) is measured: ``smooth``.
+    Otherwise the samples alone do not say which; the current does. A smooth
+    fit whose shift is half a period early (:data:`HOLD_SHIFT`) is a hold in
+    disguise: it beats hold only by averaging the voltage's noise (an
+    errors-in-variables effect, not a better model). Otherwise ``smooth`` is
+    kept when it explains the current decisively better
+    (:data:`SMOOTH_OVER_HOLD` residual variances).
     """
     fit_smooth = polish_stage(smooth, result, bounds, polish=polish)
     sw = smooth.inp.switching
-    if sw is not None and sw.transition_share >= CONVERTER_TRANSITIONS:
-        # A converter's jumps, seen through a filter: a measured voltage. A drive's
-        # held reference has no ripple; a front-end delay can still make hold fit well.
+    if (sw is not None and sw.transition_share >= CONVERTER_TRANSITIONS) or (
+        mains_ripple_share(smooth.voltage, smooth.dt) >= CONVERTER_RIPPLE
+    ):
+        # A converter's jumps or its ripple, seen through a filter: a measured voltage.
+        # A drive's held reference has neither; a front-end delay can still make hold
+        # fit well (and hold counts the voltage exact).
         return smooth, fit_smooth
     fit_hold = polish_stage(hold, result, bounds, polish=polish)
     if abs(fit_smooth.point.shift - HOLD_SHIFT) < HOLD_SHIFT_WIDTH:
@@ -418,6 +430,9 @@ def std_stage(
     along the one direction the data cannot resolve (a 0.5 V offset on a
     550 V channel moves ``Ra`` by 1-1.5 %); the same direction carries the
     intersample and front-end errors that shift the window's optimum.
+    A measured voltage whose front ends are not configured adds to ``L`` the
+    error an unknown gain between the channels can leave
+    (:func:`~observer.estimation.frontend.inductance_gain_bound`).
     """
     theta = fit.theta
     tau_samples = math.exp(theta[1] - theta[0]) / problem.dt
@@ -453,6 +468,13 @@ def std_stage(
         offset[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
     std = crlb_std(jac, fit.point.residual, tau_samples)
     point = eiv.point
+    # Channels whose front ends nobody told: their relative gain at the ripple is unknown,
+    # and L takes it whole where the ripple identifies L (an armature at 2-5 kHz).
+    gain = (
+        inductance_gain_bound(problem.current, problem.dt, point.resistance_ohm, point.inductance_h)
+        if problem.untold_front_end
+        else 0.0
+    )
     model = spec.model_std if spec is not None else np.zeros(3)
     floor = MODEL_FLOOR if measured else {"R": 0.0, "L": 0.0, "K": 0.0}
     out = {
@@ -462,7 +484,7 @@ def std_stage(
         ),
         "L": _combined(
             point.inductance_h * std[1], eiv.bias_bound[1], model[1], offset[1],
-            floor["L"] * point.inductance_h,
+            floor["L"] * point.inductance_h, gain * point.inductance_h,
         ),
     }  # fmt: skip
     i = 2

@@ -183,3 +183,31 @@ def test_averaged_moments_take_the_interval_mean_from_the_next_sample():
 def test_build_input_refuses_an_unknown_model(sampled):
     with pytest.raises(ValueError, match="unknown intersample model"):
         build_input(sampled[1], "linear")
+
+
+@pytest.mark.parametrize("mains", [50.0, 60.0])
+@pytest.mark.parametrize("fs", [2000.0, 5000.0])
+def test_a_bridges_ripple_is_told_from_noise_and_a_held_reference(mains, fs):
+    """A 6-pulse bridge's output (the largest line-to-line voltage: ripple at 6x mains),
+    sampled through an RC at fs/4, is nearly all at mains harmonics; white noise and a held
+    reference (a random walk of setpoints) put none there beyond the bands' own share."""
+    from observer.estimation.intersample import mains_ripple_share
+
+    rng = np.random.default_rng(3)
+    fine = 50
+    t = np.arange(int(fs * fine)) / (fs * fine)
+    phases = 2 * np.pi * mains * t[:, None] - np.arange(3) * 2 * np.pi / 3
+    line = np.sin(phases) - np.sin(phases + 2 * np.pi / 3)
+    bridge = np.abs(line).max(axis=1) * 400.0 + 5.0 * np.sin(2 * np.pi * 3.0 * t)
+    tau = 1 / (2 * np.pi * fs / 4)
+    alpha = (1 / (fs * fine)) / tau
+    filtered = np.empty_like(bridge)
+    y = bridge[0]
+    for k, x in enumerate(bridge):
+        y += alpha * (x - y)
+        filtered[k] = y
+    sampled = filtered[::fine] + rng.normal(0, 0.5, size=int(fs))
+    assert mains_ripple_share(sampled, 1 / fs) > 0.8
+    assert mains_ripple_share(rng.normal(size=int(fs)), 1 / fs) < 0.1
+    setpoints = np.repeat(np.cumsum(rng.normal(size=int(fs) // 100)), 100)
+    assert mains_ripple_share(setpoints, 1 / fs) < 0.1
