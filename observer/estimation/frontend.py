@@ -223,41 +223,28 @@ def edge_samples(voltage: FrontEnd, current: FrontEnd, dt: float) -> int:
 #: is taken as unknown up to that of the commonest mismatch: a first-order filter on one
 #: channel beside a second-order Butterworth on the other, both at fs/4 (a voltage
 #: divider's RC beside a current transducer's active filter). At a 6-pulse bridge's 300 Hz
-#: the pair differs by 9.7 % at 2 kHz, 2.7 % at 5 kHz and 0.7 % at 10 kHz.
+#: the pair differs in gain by 9.7 % at 2 kHz, 2.7 % at 5 kHz and 0.7 % at 10 kHz, which
+#: ``La`` takes whole.
 UNKNOWN_MISMATCH = ("rc1@fs/4", "butter2@fs/4")
 
 
-def unknown_gain_mismatch(f_hz: np.ndarray, sample_rate_hz: float) -> np.ndarray:
-    """``| |H_b/H_a| - 1 |`` of :data:`UNKNOWN_MISMATCH` at ``f_hz``."""
-    a, b = (parse_front_end(text) for text in UNKNOWN_MISMATCH)
-    ratio = np.abs(b.response(f_hz, sample_rate_hz)) / np.abs(a.response(f_hz, sample_rate_hz))
-    out: np.ndarray = np.abs(ratio - 1.0)
-    return out
+def unknown_mismatch(v: np.ndarray, dt: float) -> np.ndarray:
+    """The change of voltage samples were the channels the pair :data:`UNKNOWN_MISMATCH`.
 
-
-def inductance_gain_bound(
-    current: np.ndarray, dt: float, resistance: float, inductance: float
-) -> float:
-    """Relative error of ``L`` that an unknown gain between the channels can leave.
-
-    A relative gain ``g(f)`` of the current channel over the voltage channel
-    scales the current at ``f``; ``L`` takes it where ``wL`` dominates the
-    impedance. Projected on ``dI/d ln L``, the error of ``ln L`` is the mean of
-    ``g`` weighted by ``|I(f)|^2 (wL)^2 / |R + jwL|^2``: a winding identified
-    from its slow steps (a field) hardly feels it, an armature identified from
-    its converter's ripple feels it fully. ``g`` is :func:`unknown_gain_mismatch`.
+    ``v`` seen through ``H_b/H_a`` instead of unchanged, less the pair's
+    relative delay (the fitted or learned shift takes that): the shape of the
+    mismatch alone, its gain and phase away from zero frequency. The window is
+    mirror-extended as in :func:`apply_relative`.
     """
-    x = np.asarray(current, dtype=np.float64)
-    n = x.shape[0]
-    if n < 16 or not (resistance > 0.0 and inductance > 0.0):
-        return 0.0
-    t = np.arange(n, dtype=np.float64)
-    x = x - np.polyval(np.polyfit(t, x, 1), t)
-    power = np.abs(np.fft.rfft(x * np.hanning(n))) ** 2
-    f = np.fft.rfftfreq(n, dt)
-    wl2 = (2.0 * math.pi * f * inductance) ** 2
-    weight = power * wl2 / (resistance**2 + wl2)
-    total = float(weight.sum())
-    if not total > 0.0:
-        return 0.0
-    return float(weight @ unknown_gain_mismatch(f, 1.0 / dt)) / total
+    a, b = (parse_front_end(text) for text in UNKNOWN_MISMATCH)
+    n = v.shape[0]
+    if n < 4:
+        return np.zeros(n)
+    fs = 1.0 / dt
+    f0 = 1e-4 * fs
+    delay = -float(np.angle(relative_response(a, b, np.array([f0]), fs)[0])) / (2 * math.pi * f0)
+    ext = np.concatenate([v, v[-2:0:-1]])
+    f = np.fft.rfftfreq(ext.shape[0], dt)
+    shape = relative_response(a, b, f, fs) * np.exp(2j * math.pi * f * delay) - 1.0
+    out: np.ndarray = np.fft.irfft(np.fft.rfft(ext) * shape, ext.shape[0])[:n]
+    return out

@@ -65,8 +65,8 @@ class WindingProblem:
         converter's firing angle does, so each piece errs on its own.
     untold_front_end : bool
         A measured voltage (``smooth``, ``switched``) whose channels' front ends are not
-        configured: their relative gain is unknown
-        (:func:`~observer.estimation.frontend.inductance_gain_bound`).
+        configured: their relative response is unknown
+        (:func:`~observer.estimation.frontend.unknown_mismatch`).
     """
 
     voltage: np.ndarray
@@ -229,6 +229,17 @@ class WindingProblem:
         resistance, inductance, k, shift = self.unpack(theta)
         mu = self.mu(shift, self.lag_of(theta)).copy()
         mu[where, 0] += 1.0
+        raised, _ = self._simulated(resistance, inductance, k, mu)
+        return raised - self.residual(theta)
+
+    def input_column(self, theta: np.ndarray, dv: np.ndarray) -> np.ndarray:
+        """The residual's change at ``theta`` were ``dv`` (V, per sample) added to the voltage.
+
+        Affine in the voltage, like :meth:`offset_column`: the moments of ``dv``'s
+        band-limited reconstruction are added.
+        """
+        resistance, inductance, k, shift = self.unpack(theta)
+        mu = self.mu(shift, self.lag_of(theta)) + smooth_moments(dv, self.inp.segments, shift)
         raised, _ = self._simulated(resistance, inductance, k, mu)
         return raised - self.residual(theta)
 

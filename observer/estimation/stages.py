@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from observer.estimation import intersample_kernels as ik
-from observer.estimation.frontend import inductance_gain_bound
+from observer.estimation.frontend import unknown_mismatch
 from observer.estimation.intersample import mains_ripple_share
 from observer.estimation.polish import jacobian, levenberg_marquardt
 from observer.estimation.problem import WindingProblem
@@ -430,15 +430,17 @@ def std_stage(
     along the one direction the data cannot resolve (a 0.5 V offset on a
     550 V channel moves ``Ra`` by 1-1.5 %); the same direction carries the
     intersample and front-end errors that shift the window's optimum.
-    A measured voltage whose front ends are not configured adds to ``L`` the
-    error an unknown gain between the channels can leave
-    (:func:`~observer.estimation.frontend.inductance_gain_bound`).
+    A measured voltage whose front ends are not configured adds the moves the
+    commonest mismatch of the channels would cause
+    (:func:`~observer.estimation.frontend.unknown_mismatch`): its gain at the
+    ripple moves ``L`` whole, its phase in transients ``R`` and ``K``.
     """
     theta = fit.theta
     tau_samples = math.exp(theta[1] - theta[0]) / problem.dt
     jac = fit.jacobian
     measured = problem.inp.model != "hold"
     offset = np.zeros(3)
+    mismatch = np.zeros(3)
     if measured:
         column = problem.offset_column(theta)
         if problem.fits_k:
@@ -453,6 +455,12 @@ def std_stage(
         k = 3 if problem.fits_k else 2
         pieces = problem.alias_pieces()
         columns = [column] + [problem.offset_column(theta, where) for where, _ in pieces]
+        if problem.untold_front_end:
+            # Channels whose front ends nobody told: were they the commonest mismatch,
+            # the voltage would differ by this (its gain at the ripple moves L whole).
+            columns.append(
+                problem.input_column(theta, unknown_mismatch(problem.voltage, problem.dt))
+            )
         # The parameters' moves per volt of each error (one solve for every column).
         per_volt = np.abs(
             np.linalg.lstsq(fit.jacobian, np.column_stack(columns), rcond=None)[0][:k]
@@ -463,28 +471,24 @@ def std_stage(
             # (the firing angle moves): whichever moves the parameter more.
             steady = per_volt[:, 0] * float(np.sqrt(np.mean(np.square(problem.alias_v))))
             volts = np.array([v for _, v in pieces])
-            each = np.sqrt(np.sum((per_volt[:, 1:] * volts) ** 2, axis=1))
+            each = np.sqrt(np.sum((per_volt[:, 1 : 1 + len(pieces)] * volts) ** 2, axis=1))
             offset[:k] = np.hypot(offset[:k], np.maximum(steady, each))
+        if problem.untold_front_end:
+            mismatch[:k] = per_volt[:, -1]
         offset[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
+        mismatch[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
     std = crlb_std(jac, fit.point.residual, tau_samples)
     point = eiv.point
-    # Channels whose front ends nobody told: their relative gain at the ripple is unknown,
-    # and L takes it whole where the ripple identifies L (an armature at 2-5 kHz).
-    gain = (
-        inductance_gain_bound(problem.current, problem.dt, point.resistance_ohm, point.inductance_h)
-        if problem.untold_front_end
-        else 0.0
-    )
     model = spec.model_std if spec is not None else np.zeros(3)
     floor = MODEL_FLOOR if measured else {"R": 0.0, "L": 0.0, "K": 0.0}
     out = {
         "R": _combined(
             point.resistance_ohm * std[0], eiv.bias_bound[0], model[0], offset[0],
-            floor["R"] * point.resistance_ohm,
+            floor["R"] * point.resistance_ohm, mismatch[0],
         ),
         "L": _combined(
             point.inductance_h * std[1], eiv.bias_bound[1], model[1], offset[1],
-            floor["L"] * point.inductance_h, gain * point.inductance_h,
+            floor["L"] * point.inductance_h, mismatch[1],
         ),
     }  # fmt: skip
     i = 2
@@ -496,6 +500,7 @@ def std_stage(
                 model[2],
                 offset[2],
                 floor["K"] * abs(point.emf_constant_h),
+                mismatch[2],
             )  # fmt: skip
             if problem.fits_k
             else 0.0

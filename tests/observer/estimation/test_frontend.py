@@ -99,3 +99,24 @@ def test_a_winding_has_front_ends_only_when_both_of_its_channels_are_known():
     assert fe_i.delay_s == pytest.approx(20e-6)
     assert winding_front_ends(chain, "field") is None
     assert winding_front_ends(None, "armature") is None
+
+
+def test_the_unknown_mismatch_is_the_pairs_shape_without_its_delay():
+    """A sine at f comes back scaled by the pair's relative gain at f, and a slow one (where
+    the pair is a pure delay, which the shift takes) hardly changes."""
+    from observer.estimation.frontend import UNKNOWN_MISMATCH, unknown_mismatch
+
+    fs = 2000.0
+    t = np.arange(4000) / fs
+    a, b = (parse_front_end(x) for x in UNKNOWN_MISMATCH)
+    for f, expected in ((300.0, None), (2.0, 0.0)):
+        v = np.sin(2 * np.pi * f * t)
+        dv = unknown_mismatch(v, 1 / fs)
+        middle = slice(500, 3500)
+        gain = abs(b.response(np.array([f]), fs)[0]) / abs(a.response(np.array([f]), fs)[0])
+        amplitude = np.sqrt(2 * np.mean((v + dv)[middle] ** 2))
+        if expected is None:
+            assert amplitude == pytest.approx(gain, rel=0.01)
+            assert gain > 1.05  # the RC passes the ripple ~10 % weaker at 2 kHz
+        else:
+            assert np.max(np.abs(dv[middle])) < 1e-3

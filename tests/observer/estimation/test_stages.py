@@ -8,7 +8,7 @@ import pytest
 from observer.estimation import armature_search_range, estimate_armature
 from observer.estimation import intersample_kernels as ik
 from observer.estimation.armature import armature_problem
-from observer.estimation.frontend import inductance_gain_bound
+from observer.estimation.frontend import unknown_mismatch
 from observer.estimation.polish import levenberg_marquardt
 from observer.estimation.pso import ParticleSwarm
 from observer.estimation.stages import (
@@ -99,7 +99,7 @@ def test_without_corrections_the_uncertainty_is_the_sandwich_bound(window):
 
 def test_a_measured_voltage_adds_an_unknown_offset_and_the_model_floor(window):
     """A held voltage is the drive's reference (above); a measured one has an offset, and
-    through untold front ends an unknown gain."""
+    through untold front ends an unknown relative response."""
     problem, _, fit = _polished(window, "smooth", 5)
     std = std_stage(problem, fit, EivCorrection(fit.point, 0.0, np.zeros(3)))
     tau_samples = np.exp(fit.theta[1] - fit.theta[0]) / window["dt"]
@@ -109,15 +109,20 @@ def test_a_measured_voltage_adds_an_unknown_offset_and_the_model_floor(window):
     bias = np.abs(np.linalg.lstsq(fit.jacobian, column, rcond=None)[0][:3]) * volts
     r, ell, k = fit.point.resistance_ohm, fit.point.inductance_h, fit.point.emf_constant_h
     floor = MODEL_FLOOR
-    assert std["R"] == pytest.approx(np.linalg.norm([r * bound[0], r * bias[0], r * floor["R"]]))
-    # Nobody told the channels' front ends: their relative gain widens L.
+    # Nobody told the channels' front ends: the moves the commonest mismatch would cause.
     assert problem.untold_front_end
-    gain = inductance_gain_bound(problem.current, problem.dt, r, ell)
-    assert gain > 0
-    assert std["L"] == pytest.approx(
-        np.linalg.norm([ell * bound[1], ell * bias[1], ell * floor["L"], ell * gain])
+    shape = problem.input_column(fit.theta, unknown_mismatch(problem.voltage, problem.dt))
+    moves = np.abs(np.linalg.lstsq(fit.jacobian, shape, rcond=None)[0][:3])
+    assert moves[1] > 0
+    assert std["R"] == pytest.approx(
+        np.linalg.norm([r * bound[0], r * bias[0], r * floor["R"], r * moves[0]])
     )
-    assert std["K"] == pytest.approx(np.linalg.norm([bound[2], bias[2], abs(k) * floor["K"]]))
+    assert std["L"] == pytest.approx(
+        np.linalg.norm([ell * bound[1], ell * bias[1], ell * floor["L"], ell * moves[1]])
+    )
+    assert std["K"] == pytest.approx(
+        np.linalg.norm([bound[2], bias[2], abs(k) * floor["K"], moves[2]])
+    )
     # The offset is what Ra and K cannot be told apart from: it widens them.
     plain = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
     assert bound[0] > plain[0] and bound[2] > plain[2]
