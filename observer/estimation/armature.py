@@ -161,4 +161,5 @@ def estimate_armature(
         shift_samples=point.shift,
         shift_std=std.get("shift", 0.0),
         coverage=problem.segments.covered / n,
+        front_end_std=std.get("front_end_L", 0.0),
     )

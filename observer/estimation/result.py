@@ -52,6 +52,10 @@ class CircuitEstimate:
         one-sigma uncertainty (sample periods; 0 and 0 when not fitted).
     coverage : float
         Share of the window's samples inside segments (1 unless ``switched``).
+    front_end_std : float
+        The part of ``std["L"]`` (H) an unknown mismatch of the voltage and current
+        channels' front ends leaves (0 where they are configured; see
+        :func:`~observer.estimation.frontend.unknown_mismatch`).
     """
 
     circuit: str
@@ -72,6 +76,7 @@ class CircuitEstimate:
     shift_samples: float = 0.0
     shift_std: float = 0.0
     coverage: float = 1.0
+    front_end_std: float = 0.0
 
     @property
     def time_constant_s(self) -> float:
@@ -101,6 +106,7 @@ class CircuitEstimate:
         out["shift_samples"] = self.shift_samples
         out["shift_std"] = self.shift_std
         out["coverage"] = self.coverage
+        out["front_end_std"] = self.front_end_std
         if self.note:
             out["note"] = self.note
         out["iterations"] = self.pso.n_iterations

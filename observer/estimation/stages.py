@@ -506,6 +506,8 @@ def std_stage(
             else 0.0
         )
         i += int(problem.fits_k)
+    if problem.untold_front_end:
+        out["front_end_L"] = float(mismatch[1])
     if problem.fit_shift:
         out["shift"] = float(std[i])
         i += 1

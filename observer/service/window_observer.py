@@ -576,11 +576,30 @@ class SlidingWindowObserver:
         out["chain"] = {
             "intersample": est.intersample,
             "shift_samples": est.shift_samples,
+            "front_end_std_L": est.front_end_std,
             "decided": self._chain_state[circuit].model is not None,
         }
         if circuit == "field" and tracked["L"].status == "ok":
             self._check_field_window(tracked["L"].value, tracked["R"].value)
+        if est is not None:
+            self._check_front_ends(circuit, est)
         return out
+
+    def _check_front_ends(self, circuit: str, est: CircuitEstimate) -> None:
+        """Say once why L is held where the channels' unknown front ends alone hold it."""
+        key = f"front_ends_{circuit}"
+        share = est.front_end_std / est.inductance_h if est.inductance_h > 0 else 0.0
+        limit = self.config.quality.limits(circuit)["L"]
+        if key in self.warnings or not share > limit:
+            return
+        self.warnings.add(key)
+        name = CIRCUIT_NAMES[circuit]["L"]
+        log.warning(
+            "%s held: the %s voltage and current front ends are not configured, and "
+            "channels filtered differently would move %s by %.1f %% in this window (quality "
+            "limit %.1f %%); configure [chain] (docs/drive_chain.md)",
+            name, circuit, name, 100 * share, 100 * limit,
+        )  # fmt: skip
 
     def _check_field_window(self, inductance: float | None, resistance: float | None) -> None:
         cfg = self.config
