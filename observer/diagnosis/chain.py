@@ -24,6 +24,10 @@ Three findings come from the front end alone, whatever the motor does:
 ``content_near_nyquist``
     Structure located in the residual is no larger than the folded voltage
     could cause (decided in :mod:`observer.diagnosis.diagnose`).
+``front_ends_unknown``
+    The winding's front ends are not configured, and a mismatch of the voltage
+    and current channels' filters would move its inductance by more than
+    :data:`FRONT_END_SHARE` (the estimate's ``front_end_std``).
 """
 
 from __future__ import annotations
@@ -47,6 +51,9 @@ SKEW_MIN_SAMPLES = 0.02
 #: ... this many of its standard deviations, is a chain finding.
 SKEW_SIGMAS = 4.0
 
+#: An untold front end that could move L by more than this share is a chain finding.
+FRONT_END_SHARE = 0.01
+
 #: Band edges (fractions of the sample rate) of the line content compared.
 _MID = (0.25, 0.375)
 _TOP = (0.375, 0.5)
@@ -58,6 +65,10 @@ NO_FILTER_ADVICE = (
 SKEW_ADVICE = (
     "configure the front ends in [chain] (filter of each channel, delay_us of a multiplexed ADC) "
     "or filter the voltage and current channels alike"
+)
+FRONT_END_ADVICE = (
+    "configure the {ch} and {cur} channels' front ends in [chain] (filter kind, order and "
+    "cutoff of each): the estimator then models them exactly"
 )
 ALIAS_ADVICE = (
     "sample faster (at least 5 kHz behind a 6-pulse bridge), or lower the voltage channels' "
@@ -211,4 +222,22 @@ def alias_finding(
         f"located ({words}, {offset_v:.3g} V at the winding) is no larger: it is the sampling "
         "of the converter's voltage, not the motor",
         ALIAS_ADVICE,
+    )
+
+
+def front_end_finding(
+    voltage: str, current: str, front_end_std: float, inductance: float, name: str
+) -> ChainFinding | None:
+    """``front_ends_unknown`` if untold front ends leave ``L`` (``name``) this uncertain."""
+    share = front_end_std / inductance if inductance > 0 else 0.0
+    if not share > FRONT_END_SHARE:
+        return None
+    return ChainFinding(
+        voltage,
+        "front_ends_unknown",
+        f"measurement chain: the {voltage} and {current} front ends are not configured; were "
+        f"their anti-aliasing filters of different kinds (a first-order beside a second-order at "
+        f"fs/4), {name} would be off by {100 * share:.1f} %: the relative gain at the "
+        "converter's ripple scales the ripple current, and the samples alone cannot tell",
+        FRONT_END_ADVICE.format(ch=voltage, cur=current),
     )

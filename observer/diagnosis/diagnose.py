@@ -54,6 +54,7 @@ from observer.diagnosis import kernels as dk
 from observer.diagnosis.chain import (
     VoltageSpectrum,
     alias_finding,
+    front_end_finding,
     no_filter_finding,
     skew_finding,
     voltage_spectrum,
@@ -781,13 +782,19 @@ def alias_explains(
 def front_end_findings(
     rec: Any, baseline: Baseline, spectra: dict[str, VoltageSpectrum]
 ) -> tuple[ChainFinding, ...]:
-    """What the front end shows whatever the motor does: a missing filter, skewed channels."""
+    """What the front end shows whatever the motor does: a missing filter, skewed channels,
+    front ends nobody told whose mismatch could move an inductance."""
     out = []
     for circuit, voltage in VOLTAGE_CHANNEL.items():
         shift, std = baseline.shifts.get(circuit, (0.0, 0.0))
+        est = baseline.field if circuit == "field" else baseline.armature
+        name = "Lf" if circuit == "field" else "La"
         for found in (
             no_filter_finding(voltage, spectra[circuit]),
             skew_finding(voltage, CURRENT_CHANNEL[circuit], shift, std, rec.dt),
+            front_end_finding(
+                voltage, CURRENT_CHANNEL[circuit], est.front_end_std, est.inductance_h, name
+            ),
         ):
             if found is not None:
                 out.append(found)

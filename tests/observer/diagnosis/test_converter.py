@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from observer.diagnosis.chain import skew_finding, voltage_spectrum
+from observer.diagnosis.chain import front_end_finding, skew_finding, voltage_spectrum
 from observer.diagnosis.diagnose import diagnose
 from observer.diagnosis.results import NONE, UNEXPLAINED
 from observer.estimation.motor import P12
@@ -27,7 +27,10 @@ REALISTIC = PRESETS["realistic"]
 assert REALISTIC is not None
 NO_FILTER = REALISTIC.replace(chain=MeasurementChain.uniform(ChannelChain(bits=12)))
 #: Chain findings that are allowed beside a ``none`` on a healthy converter-fed motor.
-CHAIN_KINDS = {"content_near_nyquist", "jumps_between_samples", "no_anti_aliasing", "channel_skew"}
+CHAIN_KINDS = {
+    "content_near_nyquist", "jumps_between_samples", "no_anti_aliasing", "channel_skew",
+    "front_ends_unknown",
+}  # fmt: skip
 
 
 def _recording(effects=None, *, seed=1, duration_s=6.0, drive=REALISTIC):
@@ -59,6 +62,14 @@ def test_a_skew_is_a_chain_finding_only_when_it_is_real():
     assert skew_finding("va", "ia", 0.005, 0.0001, dt) is None  # too small to matter
 
 
+def test_an_untold_front_end_that_could_move_an_inductance_is_a_chain_finding():
+    found = front_end_finding("va", "ia", 0.0016, 0.02, "La")
+    assert found is not None and found.kind == "front_ends_unknown"
+    assert "La would be off by 8.0 %" in found.description
+    assert "[chain]" in found.advice
+    assert front_end_finding("va", "ia", 0.0001, 0.02, "La") is None  # 0.5 %: no matter
+
+
 def test_a_healthy_motor_behind_the_thyristor_converter_is_none():
     # 10 s at 2 kHz: the ia residual follows the ripple amplitude (the converter's content
     # folded by sampling), z ~ 10: before the chain test this was `unexplained`.
@@ -67,6 +78,8 @@ def test_a_healthy_motor_behind_the_thyristor_converter_is_none():
     assert diag.verdict == NONE, diag.description
     assert {c.kind for c in diag.chain} <= CHAIN_KINDS
     assert any(c.kind == "content_near_nyquist" for c in diag.chain)
+    # Nobody told the chain: at 2 kHz La could be off by the channels' mismatch.
+    assert any(c.kind == "front_ends_unknown" and c.channel == "va" for c in diag.chain)
     assert all(c.advice for c in diag.chain)
 
 
