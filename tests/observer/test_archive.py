@@ -101,6 +101,9 @@ def test_replay_of_an_archive_on_a_dask_cluster_equals_the_serial_run(archive, c
     text = (archive / "serial.csv").read_text()
     assert (archive / "remote.csv").read_text() == text
     assert (archive / "local.csv").read_text() == text
+    # The test's cluster has dask's default worker environment, the command's own does not.
+    assert "its workers run with MALLOC_TRIM_THRESHOLD_=65536" in remote.stderr
+    assert "MALLOC_TRIM_THRESHOLD_" not in local.stderr
 
     rows = read_table(archive / "serial.csv")
     assert {r["file"] for r in rows if r["error"]} == {str(archive / b) for b in BAD}
