@@ -33,7 +33,7 @@ import numpy as np
 
 from bench.common import machine_description
 from observer.config import Config, ObserverConfig
-from observer.estimation import armature, field
+from observer.estimation import armature, field, stages
 from observer.estimation import intersample_kernels as ik
 from observer.estimation.motor import P12
 from observer.recording import write_recording
@@ -49,9 +49,9 @@ TARGET_REPLAY_X = 30.0
 Key = tuple[str, str, str]
 """(circuit, "first" or "warm", stage)."""
 
-#: The stages as the estimators call them (``field.py`` and ``armature.py`` import them by name).
-STAGES = ("swarm_stage", "hold_or_smooth", "polish_stage", "eiv_stage", "specification_stage",
-          "std_stage")  # fmt: skip
+#: The stages as the estimators and :func:`~observer.estimation.stages.search_and_polish` call them.
+STAGES = ("settled_stage", "swarm_stage", "hold_or_smooth", "polish_stage", "eiv_stage",
+          "specification_stage", "std_stage")  # fmt: skip
 
 
 class Ledger:
@@ -99,17 +99,19 @@ def instrument(ledger: Ledger) -> Callable[[], None]:
         undo.append((module, name, getattr(module, name)))
         setattr(module, name, wrapper)
 
-    for module, circuit in ((field, "field"), (armature, "armature")):
+    def staged_as(stage: str, original: Any) -> Any:
+        def staged(*a: Any, **kw: Any) -> Any:
+            with ledger.in_stage(stage):
+                return original(*a, **kw)
+
+        return staged
+
+    # Where the estimators look the stages up, and where search_and_polish does.
+    for module in (field, armature, stages):
         for stage in STAGES:
-            original = getattr(module, stage)
-
-            def staged(*a: Any, _o: Any = original, _s: str = stage, _c: str = circuit,
-                       **kw: Any) -> Any:  # fmt: skip
-                ledger.circuit = _c
-                with ledger.in_stage(_s):
-                    return _o(*a, **kw)
-
-            patch(module, stage, staged)
+            if hasattr(module, stage):
+                patch(module, stage, staged_as(stage, getattr(module, stage)))
+    for circuit in ("field", "armature"):
         estimator = "estimate_field" if circuit == "field" else "estimate_armature"
         original_est = getattr(window_observer, estimator)
 
@@ -219,6 +221,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--thread-repeats", type=int, default=20, help="timed windows of the two-thread test"
     )
+    parser.add_argument(
+        "--decimate", type=int, default=1, help="[observer] decimate (average N samples)"
+    )
     parser.add_argument("--output", type=Path, default=Path("docs/window_work.md"))
     parser.add_argument("--quick", action="store_true", help="smoke run: 3 s at 2 kHz")
     args = parser.parse_args(argv)
@@ -226,6 +231,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.duration, args.rate, args.cold_windows, args.thread_repeats = 3.0, 2000.0, 5, 2
     if args.duration < 2.0 or args.rate < 100:
         parser.error("--duration must be >= 2 s and --rate >= 100 Hz")
+    if args.decimate < 1:
+        parser.error("--decimate must be >= 1")
     return args
 
 
@@ -233,7 +240,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     machine = machine_description()
     warm_up_kernels()
-    config = Config(observer=ObserverConfig())
+    config = Config(observer=ObserverConfig(decimate=args.decimate))
     with tempfile.TemporaryDirectory(prefix="dcobserver-work-") as tmp:
         path = Path(tmp) / "p12.mcap"
         rec = simulate(P12, duration_s=args.duration, sample_rate_hz=args.rate, seed=args.seed)
@@ -253,7 +260,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "",
         f"Made by `python -m bench.window_work{' ' + ' '.join(argv) if argv else ''}` on "
         f"{machine}. A simulated P-12, {args.duration:g} s at {args.rate:g} Hz, both circuits, "
-        f"default `[observer]` (window {config.observer.window_s:g} s, hop {hop:g} s, cold "
+        f"default `[observer]` (window {config.observer.window_s:g} s, hop {hop:g} s, "
+        f"decimate {config.observer.decimate}, cold "
         f"{config.observer.cold_particles}×{config.observer.cold_iterations}, warm "
         f"{config.observer.warm_particles}×{config.observer.warm_iterations}), through "
         "`dcobserver replay`'s code path. Times are the thread's CPU time.",
@@ -269,8 +277,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "|---|---|---|---|---|---|---|---|",
     ]
     short = [lines[6]]
-    stages = ("swarm_stage", "hold_or_smooth", "polish_stage", "eiv_stage",
-              "specification_stage", "std_stage", "other")  # fmt: skip
+    stages = STAGES + ("other",)
     for circuit in ("field", "armature"):
         for group in ("first", "warm"):
             n = len(ledger.windows[(circuit, group)])
@@ -303,7 +310,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "",
         "`other` is the estimator's own work outside the stages (search range, choice of the "
         "intersample model, the window's problem with its cubic moments); `hold_or_smooth` "
-        "holds the two polishes of a window whose model is still being decided. Residual "
+        "holds the two polishes of a window whose model is still being decided; "
+        "`settled_stage` a settled window's start from the tracked state (one cost "
+        "evaluation; its polish is counted under `polish_stage`), which runs no swarm unless "
+        "that polish fails. Residual "
         "evaluations are the polish's and the specification test's Levenberg-Marquardt steps "
         "and finite-difference Jacobians (2 per parameter).",
         "",

@@ -27,11 +27,9 @@ from observer.estimation.stages import (
     EivCorrection,
     SwarmSettings,
     eiv_stage,
-    hold_or_smooth,
-    polish_stage,
+    search_and_polish,
     specification_stage,
     std_stage,
-    swarm_stage,
 )
 
 
@@ -91,6 +89,7 @@ def estimate_armature(
     fit_lag: bool = False,
     lag: float = 0.0,
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
+    settled_rms: float | None = None,
 ) -> CircuitEstimate:
     """Estimate ``(Ra, La, K)`` of the armature from ``va, ia`` and measured ``if, omega``.
 
@@ -108,6 +107,9 @@ def estimate_armature(
     intersample, fit_shift, shift
         The voltage's intersample model, whether to fit the relative delay of
         the voltage channel and its value (see :func:`observer.estimation.estimate_field`).
+    settled_rms : float, optional
+        With ``x0``: polish from ``x0`` without a swarm unless that fit's rms (A)
+        exceeds this (see :func:`observer.estimation.estimate_field`).
     Other parameters
         As for :func:`estimate_field`.
     """
@@ -127,16 +129,19 @@ def estimate_armature(
     settings = SwarmSettings(
         n_particles, max_iterations, schedule, w, x0, init_range, explore_fraction, tol
     )
-    result = swarm_stage(problem, bounds, settings, rng_)
-    if intersample == "auto" and problem.inp.model == "smooth" and front_ends is None:
-        hold = make_problem(
+    undecided = intersample == "auto" and problem.inp.model == "smooth" and front_ends is None
+
+    def hold() -> WindingProblem:
+        return make_problem(
             problem.voltage, problem.current, dt, "hold", switching=problem.inp.switching,
             emf=problem.emf, emf_constant=emf_constant,
             also_checked=(kernel_array(i_f), kernel_array(omega)),
         )  # fmt: skip
-        problem, fit = hold_or_smooth(problem, hold, result, bounds, polish=polish)
-    else:
-        fit = polish_stage(problem, result, bounds, polish=polish)
+
+    problem, result, fit = search_and_polish(
+        problem, bounds, settings, rng_, polish=polish, settled_rms=settled_rms,
+        hold=hold if undecided else None,
+    )  # fmt: skip
     if compensate_input_noise:
         eiv = eiv_stage(problem, fit.point, bounds, settings, rng_)
     else:

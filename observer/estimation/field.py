@@ -21,11 +21,9 @@ from observer.estimation.stages import (
     EivCorrection,
     SwarmSettings,
     eiv_stage,
-    hold_or_smooth,
-    polish_stage,
+    search_and_polish,
     specification_stage,
     std_stage,
-    swarm_stage,
 )
 
 
@@ -50,6 +48,7 @@ def estimate_field(
     shift: float = 0.0,
     compensate_input_noise: bool = False,
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
+    settled_rms: float | None = None,
 ) -> CircuitEstimate:
     """Estimate ``(Rf, Lf)`` of the field winding from ``vf`` (V) and ``if`` (A).
 
@@ -79,6 +78,10 @@ def estimate_field(
         not fitted (a chain calibrated beforehand).
     compensate_input_noise : bool
         Remove the errors-in-variables bias of noise on ``vf``.
+    settled_rms : float, optional
+        With ``x0``: polish from ``x0`` without a swarm, and run the swarm only
+        if that fit's rms (A) exceeds this
+        (:func:`~observer.estimation.stages.settled_stage`).
     """
     vf = kernel_array(vf)
     i_f = kernel_array(i_f)
@@ -93,12 +96,12 @@ def estimate_field(
     settings = SwarmSettings(
         n_particles, max_iterations, schedule, w, x0, init_range, explore_fraction, tol
     )
-    result = swarm_stage(problem, bounds, settings, rng_)
-    if intersample == "auto" and problem.inp.model == "smooth" and front_ends is None:
-        hold = make_problem(vf, i_f, dt, "hold", switching=switching)
-        problem, fit = hold_or_smooth(problem, hold, result, bounds, polish=polish)
-    else:
-        fit = polish_stage(problem, result, bounds, polish=polish)
+    undecided = intersample == "auto" and problem.inp.model == "smooth" and front_ends is None
+    problem, result, fit = search_and_polish(
+        problem, bounds, settings, rng_, polish=polish, settled_rms=settled_rms,
+        hold=(lambda: make_problem(vf, i_f, dt, "hold", switching=switching))
+        if undecided else None,
+    )  # fmt: skip
     if compensate_input_noise:
         eiv = eiv_stage(problem, fit.point, bounds, settings, rng_)
     else:

@@ -401,3 +401,68 @@ def update_personal_best(
         if personal_cost[p] < personal_cost[best]:
             best = p
     return best
+
+
+@njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
+def score_products(
+    jac: np.ndarray, residual: np.ndarray, batch: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``J'J``, and ``sum s s'`` over the score sums ``s = sum J_k r_k`` of every run of ``batch``.
+
+    The sandwich bound's two products
+    (:func:`observer.estimation.uncertainty.crlb_std`) column by column: every
+    run of ``batch`` consecutive samples counted once, its sums sliding (one
+    sample in, one out); ``batch = 0``: no runs, the second product is zero.
+    The sums of products may be reassociated (vectorised).
+    """
+    n, p = jac.shape
+    cols = np.empty((p, n))
+    for k in range(n):
+        for i in range(p):
+            cols[i, k] = jac[k, i]
+    jtj = _gram(cols)
+    if batch < 1 or batch > n:
+        return jtj, np.zeros((p, p))
+    rows = n + 1 - batch
+    sums = np.empty((p, rows))
+    for i in range(p):
+        s = 0.0
+        for k in range(batch):
+            s += cols[i, k] * residual[k]
+        sums[i, 0] = s
+        for k in range(batch, n):
+            s += cols[i, k] * residual[k] - cols[i, k - batch] * residual[k - batch]
+            sums[i, k - batch + 1] = s
+    return jtj, _gram(sums)
+
+
+@njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
+def _gram(rows: np.ndarray) -> np.ndarray:
+    """``X X'`` of a ``(p, m)`` array: the products of its rows (reassociated sums)."""
+    p, m = rows.shape
+    out = np.empty((p, p))
+    for i in range(p):
+        for j in range(i + 1):
+            acc = 0.0
+            for k in range(m):
+                acc += rows[i, k] * rows[j, k]
+            out[i, j] = acc
+            out[j, i] = acc
+    return out
+
+
+@njit(nogil=True, cache=True)
+def autocovariances(x: np.ndarray, max_lag: int) -> np.ndarray:
+    """``sum_k x[k] x[k+lag] / n`` for ``lag = 1 .. max_lag`` (``x`` already centred).
+
+    The lags are the inner loop: independent sums that vectorise, where one
+    dot product per lag is a chain of dependent additions.
+    """
+    n = x.shape[0]
+    out = np.zeros(max_lag)
+    for k in range(n - 1):
+        xk = x[k]
+        top = min(max_lag, n - 1 - k)
+        for lag in range(top):
+            out[lag] += xk * x[k + 1 + lag]
+    return out / n

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -165,8 +166,56 @@ def swarm_stage(
     )  # fmt: skip
 
 
+#: A settled window's polish gets this many iterations (a warm window's takes 2-5) ...
+SETTLED_ITERATIONS = 10
+#: ... and must end where the undamped step gains less than this share of the cost
+#: (1e-6: a hundredth of the residual variance on a window of 10^4 samples).
+SETTLED_RTOL = 1e-6
+
+
+def settled_stage(
+    problem: WindingProblem,
+    bounds: SearchRange,
+    x0: tuple[float, float],
+    rms_limit: float,
+    *,
+    polish: bool = True,
+) -> tuple[PSOResult, PolishedFit] | None:
+    """Stages 1 and 2 of a settled warm window: the polish from the warm start, no swarm.
+
+    A window whose predecessors agreed with the tracked state ``x0`` has, most
+    likely, the same minimum near ``x0``: Levenberg-Marquardt from there lands
+    on it with one cost evaluation where the warm swarm spends 500. The
+    polished fit stands when it converged within :data:`SETTLED_ITERATIONS`
+    (what the undamped step could still gain is below :data:`SETTLED_RTOL` of
+    the cost) and its residual's rms is at most ``rms_limit`` (the observer's
+    limit for a degraded fit); None otherwise: the cost surface moved (a
+    minimum far from ``x0``, crept towards in small steps), and the window
+    needs its swarm.
+    """
+    box = bounds.log_bounds()
+    x = np.clip(np.log10(np.asarray(x0, dtype=np.float64)), box[:, 0], box[:, 1])
+    cost = float(problem.swarm_cost()(x[None, :])[0])
+    start = PSOResult(
+        x=x, cost=cost, n_iterations=0, n_evaluations=1, history=np.array([cost]),
+        converged=False, message="settled: polished from the warm start without a swarm",
+    )  # fmt: skip
+    fit = polish_stage(problem, start, bounds, polish=polish, max_iterations=SETTLED_ITERATIONS)
+    residual = fit.point.residual
+    cost = float(residual @ residual)
+    grad = fit.jacobian.T @ residual
+    gain = float(grad @ np.linalg.lstsq(fit.jacobian.T @ fit.jacobian, grad, rcond=None)[0])
+    rms = math.sqrt(cost / max(residual.size, 1))
+    return (start, fit) if rms <= rms_limit and gain <= SETTLED_RTOL * cost else None
+
+
 def polish_stage(
-    problem: WindingProblem, result: PSOResult, bounds: SearchRange, *, polish: bool = True
+    problem: WindingProblem,
+    result: PSOResult,
+    bounds: SearchRange,
+    *,
+    polish: bool = True,
+    max_iterations: int = 30,
 ) -> PolishedFit:
     """Stage 2: Levenberg-Marquardt from the swarm's best (``polish`` off: only the Jacobian)."""
     resistance, inductance = (float(v) for v in 10.0**result.x)
@@ -174,7 +223,9 @@ def polish_stage(
     theta = problem.theta0(resistance, inductance, k0)
     lower, upper = problem.limits(bounds.log_bounds())
     if polish:
-        theta, resid, jac = levenberg_marquardt(problem.residual, theta, lower=lower, upper=upper)
+        theta, resid, jac = levenberg_marquardt(
+            problem.residual, theta, lower=lower, upper=upper, max_iterations=max_iterations
+        )
     else:
         resid = problem.residual(theta)
         jac = jacobian(problem.residual, theta)
@@ -258,6 +309,36 @@ def local_minimum(cost: CostFunction, x0: np.ndarray, box: np.ndarray) -> np.nda
         if np.any(x <= box[:, 0]) or np.any(x >= box[:, 1]):
             return None
     return x
+
+
+def search_and_polish(
+    problem: WindingProblem,
+    bounds: SearchRange,
+    settings: SwarmSettings,
+    rng: np.random.Generator,
+    *,
+    polish: bool = True,
+    settled_rms: float | None = None,
+    hold: Callable[[], WindingProblem] | None = None,
+) -> tuple[WindingProblem, PSOResult, PolishedFit]:
+    """Stages 1 and 2 as a window needs them: the problem kept, the swarm's result, the fit.
+
+    A settled window (``settled_rms`` and a warm start ``settings.x0``) is
+    polished from the warm start (:func:`settled_stage`), and searched by the
+    swarm only if that fails. ``hold`` makes the held-voltage problem of a
+    window whose intersample model is not decided: both are polished
+    (:func:`hold_or_smooth`), never settled.
+    """
+    if settled_rms is not None and settings.x0 is not None and hold is None:
+        settled = settled_stage(problem, bounds, settings.x0, settled_rms, polish=polish)
+        if settled is not None:
+            return problem, *settled
+    result = swarm_stage(problem, bounds, settings, rng)
+    if hold is not None:
+        problem, fit = hold_or_smooth(problem, hold(), result, bounds, polish=polish)
+    else:
+        fit = polish_stage(problem, result, bounds, polish=polish)
+    return problem, result, fit
 
 
 def eiv_stage(

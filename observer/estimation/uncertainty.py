@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 
+from observer.estimation import kernels
+
 
 def crlb_std(
     jac: np.ndarray, residual: np.ndarray, time_constant_samples: float = 0.0
@@ -26,22 +28,24 @@ def crlb_std(
     keeps the bound honest then, and equals it when the residual is white.
     """
     n, p = jac.shape
+    max_lag = int(min(3.0 * time_constant_samples, 400, n // 4))
+    # Bartlett-weighted long-run covariance as overlapping batch means: the
+    # covariance of the scores' sums over every run of max_lag + 1 samples
+    # (one pass over the samples with J'J, instead of one product per lag).
+    batch = max_lag + 1 if max_lag >= 1 else 0
+    jtj, sums = kernels.score_products(
+        np.ascontiguousarray(jac, dtype=np.float64),
+        np.ascontiguousarray(residual, dtype=np.float64),
+        batch,
+    )
     try:
-        bread = np.linalg.inv(jac.T @ jac)
+        bread = np.linalg.inv(jtj)
     except np.linalg.LinAlgError:
         return np.full(p, np.inf)
     sigma2 = float(residual @ residual) / max(n - p, 1)
     white = sigma2 * np.diag(bread)
-    max_lag = int(min(3.0 * time_constant_samples, 400, n // 4))
-    if max_lag >= 1:
-        # Bartlett-weighted long-run covariance as overlapping batch means: the
-        # covariance of the scores' sums over every run of max_lag + 1 samples
-        # (one cumulative sum and one product instead of one product per lag).
-        scores = jac * residual[:, None]
-        cum = np.vstack([np.zeros((1, p)), np.cumsum(scores, axis=0)])
-        batch = max_lag + 1
-        sums = cum[batch:] - cum[:-batch]
-        meat = (sums.T @ sums) / batch * (n / sums.shape[0])
+    if batch:
+        meat = sums / batch * (n / (n + 1 - batch))
         meat *= n / max(n - p, 1)
         robust = np.diag(bread @ meat @ bread)
         # Never report less than the white-noise bound.
@@ -70,7 +74,7 @@ def input_noise_variance(residual: np.ndarray, a: float, b: float) -> float:
     n = r.size
     tau_samples = -1.0 / math.log(a) if 0 < a < 1 else float(n)
     m = int(min(200, max(5, 3 * tau_samples), n // 4))
-    cov = np.array([r[:-lag] @ r[lag:] / n for lag in range(1, m + 1)])
+    cov = kernels.autocovariances(np.ascontiguousarray(r), m)
     shape = b * b * a ** np.arange(1, m + 1) / (1.0 - a * a)
     # A constant term takes up slow structure (model error, drift) that would
     # otherwise be read as input noise and over-correct.

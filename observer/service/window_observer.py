@@ -26,7 +26,10 @@ window barely depends on ``L``), the last window's fitted ``L`` stands in once
 ``R`` is, instead of a cold swarm in every window. ``factor`` shrinks while the
 fits agree with the tracked state and widens (and the next window runs the
 cold, larger swarm) when the fit degrades or differs by more than
-``[observer.agree]``.
+``[observer.agree]``. Once it has shrunk to ``min_range_factor`` the search is
+settled: a window is polished from the tracked state without a swarm
+(:func:`observer.estimation.stages.settled_stage`), and its swarm runs only
+when that fit is degraded (``degrade_ratio`` times the recent fits' median rms).
 
 Measurement chain: each circuit's intersample model (how the voltage behaves
 between samples, :mod:`observer.estimation.intersample`) and the relative delay
@@ -430,6 +433,14 @@ class SlidingWindowObserver:
             init_range=init,
             explore_fraction=cfg.explore_fraction if warm else 0.0,
         )
+        if (
+            warm
+            and search.factor is not None
+            and search.factor <= cfg.min_range_factor
+            and len(search.rms_history) >= 3
+        ):
+            # Settled: polish from the tracked state; the swarm only if that fit degrades.
+            kwargs["settled_rms"] = cfg.degrade_ratio * statistics.median(search.rms_history)
         kwargs.update(self._chain_kwargs(circuit, k))
         est: CircuitEstimate
         if circuit == "field":

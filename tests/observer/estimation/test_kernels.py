@@ -107,3 +107,25 @@ def test_pso_update_keeps_particles_in_bounds():
             0.7, 1.5, 1.5, lower, upper, np.full(3, 10.0),
         )  # fmt: skip
         assert np.all(x >= lower) and np.all(x <= upper)
+
+
+@pytest.mark.parametrize(("n", "p", "batch"), [(2000, 3, 181), (500, 2, 0), (40, 5, 11), (7, 1, 7)])
+def test_score_products_are_the_sandwich_bounds_plain_products(n, p, batch):
+    """J'J and the sliding runs' sum of s s' against numpy's products of every run's sum."""
+    rng = np.random.default_rng(n)
+    jac = rng.standard_normal((n, p)) * np.logspace(-3, 3, p)
+    residual = np.convolve(rng.standard_normal(n + 9), np.ones(10), "valid")
+    jtj, meat = kernels.score_products(jac, residual, batch)
+    np.testing.assert_allclose(jtj, jac.T @ jac, rtol=1e-12)
+    if batch == 0:
+        assert not meat.any()
+        return
+    scores = jac * residual[:, None]
+    sums = np.array([scores[k : k + batch].sum(axis=0) for k in range(n + 1 - batch)])
+    np.testing.assert_allclose(meat, sums.T @ sums, rtol=1e-10, atol=1e-12 * np.abs(meat).max())
+
+
+def test_autocovariances_are_the_lagged_dot_products():
+    x = np.random.default_rng(1).standard_normal(300)
+    expected = [x[:-lag] @ x[lag:] / x.size for lag in range(1, 51)]
+    np.testing.assert_allclose(kernels.autocovariances(x, 50), expected, rtol=1e-12, atol=1e-15)

@@ -23,6 +23,7 @@ from observer.estimation.stages import (
     hold_or_smooth,
     local_minimum,
     polish_stage,
+    settled_stage,
     specification_stage,
     std_stage,
     swarm_stage,
@@ -352,3 +353,36 @@ def test_a_converters_ripple_marks_a_measured_voltage_where_its_jumps_are_hidden
     assert arm.intersample == "smooth"
     error = arm.resistance_ohm - motor.armature_resistance_ohm
     assert abs(error) <= 2.5 * arm.std["R"], (arm.resistance_ohm, arm.std["R"])
+
+
+def test_a_settled_window_is_polished_from_the_warm_start_without_a_swarm(window):
+    """From a warm start near the window's minimum the polish alone lands where the swarm and
+    polish land (one cost evaluation instead of a swarm); a degraded fit, or a start far
+    from the minimum (the surface moved), gives None: the window needs its swarm."""
+    problem, _, reference = _polished(window, "hold", 11)
+    bounds = _bounds(window)
+    near = (reference.point.resistance_ohm * 1.01, reference.point.inductance_h * 0.98)
+    settled = settled_stage(problem, bounds, near, rms_limit=1.0)
+    assert settled is not None
+    start, fit = settled
+    assert start.n_evaluations == 1 and start.n_iterations == 0
+    std = std_stage(problem, reference, EivCorrection(reference.point, 0.0, np.zeros(3)))
+    assert abs(fit.point.resistance_ohm - reference.point.resistance_ohm) < 0.01 * std["R"]
+    assert abs(fit.point.inductance_h - reference.point.inductance_h) < 0.01 * std["L"]
+    rms = np.sqrt(np.mean(fit.point.residual**2))
+    assert settled_stage(problem, bounds, near, rms_limit=0.5 * rms) is None
+    far = (reference.point.resistance_ohm * 40.0, reference.point.inductance_h / 40.0)
+    assert settled_stage(problem, bounds, far, rms_limit=1e9) is None
+
+
+def test_estimate_armature_runs_its_swarm_only_when_the_settled_polish_fails(window):
+    kw = dict(rng=3, n_particles=24, max_iterations=20, intersample="hold")
+    signals = (window["va"], window["ia"], window["if"], window["omega"], window["dt"])
+    plain = estimate_armature(*signals, **kw)
+    x0 = (plain.resistance_ohm, plain.inductance_h)
+    settled = estimate_armature(*signals, x0=x0, settled_rms=2.0 * plain.rms_a, **kw)
+    assert settled.pso.n_evaluations == 1
+    assert settled.resistance_ohm == pytest.approx(plain.resistance_ohm, abs=0.01 * plain.std["R"])
+    assert settled.std["R"] == pytest.approx(plain.std["R"], rel=0.01)
+    degraded = estimate_armature(*signals, x0=x0, settled_rms=0.5 * plain.rms_a, **kw)
+    assert degraded.pso.n_evaluations > 1  # the swarm ran

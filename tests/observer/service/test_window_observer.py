@@ -68,6 +68,10 @@ def test_estimates_converge_to_the_motor(p12_run):
     # Warm start kicks in and shrinks the range after the first window.
     assert not estimates[0]["armature"]["warm"]
     assert any(e["armature"]["warm"] for e in estimates[1:])
+    # Once the fits have agreed long enough the windows are settled: polished from the
+    # tracked state, without a swarm (one cost evaluation).
+    assert any(e["armature"]["evaluations"] == 1 for e in estimates[10:])
+    assert any(e["field"]["evaluations"] == 1 for e in estimates[10:])
     assert estimates[0]["window"] == [0, 1_000_000_000]
     assert [r.index for r in results] == list(range(len(results)))
 
