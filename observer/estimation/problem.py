@@ -64,9 +64,10 @@ class WindingProblem:
         :func:`~observer.estimation.intersample.alias_bias_bound`). It changes where the
         converter's firing angle does, so each piece errs on its own.
     untold_front_end : bool
-        A measured voltage (``smooth``, ``switched``) whose channels' front ends are not
-        configured: their relative response is unknown
-        (:func:`~observer.estimation.frontend.unknown_mismatch`).
+        A filtered voltage (``smooth``) whose channels' front ends are not configured:
+        their relative response is unknown
+        (:func:`~observer.estimation.frontend.unknown_mismatch`). A ``switched`` voltage
+        shows clean jumps, so no filter; its current channel is taken alike.
     """
 
     voltage: np.ndarray
@@ -363,6 +364,6 @@ def make_problem(
     inp = build_input(voltage, model, shift=shift, switching=switching, valid=valid)  # type: ignore[arg-type]
     problem = WindingProblem(
         voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag, alias_v,
-        untold_front_end=front_ends is None and model in ("smooth", "switched"),
+        untold_front_end=front_ends is None and model == "smooth",
     )  # fmt: skip
     return problem.with_shift(shift, lag) if lag else problem
