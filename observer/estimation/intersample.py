@@ -486,13 +486,17 @@ MIN_SPECTRAL_SEGMENT = 16
 
 
 @functools.lru_cache(maxsize=32)
+@functools.lru_cache(maxsize=8)
 def _legendre_responses(n: int) -> np.ndarray:
-    """``(n, 3)``: the three interval moments of ``exp(j w u)``, ``u`` in [0, 1], at FFT bins."""
+    """``(3, n // 2 + 1)``: the three interval moments of ``exp(j w u)``, ``u`` in [0, 1], at the
+    real FFT's bins (read-only; a window's length repeats, so it is cached)."""
     x, w = np.polynomial.legendre.leggauss(12)
     u = 0.5 * (x + 1.0)
     legendre = np.stack([np.ones_like(u), 2.0 * u - 1.0, 6.0 * u * u - 6.0 * u + 1.0], axis=1)
-    omega = 2.0 * np.pi * np.fft.fftfreq(n)
-    return np.exp(1j * np.outer(omega, u)) @ (0.5 * w[:, None] * legendre)
+    omega = 2.0 * np.pi * np.fft.rfftfreq(n)
+    out = np.ascontiguousarray((np.exp(1j * np.outer(omega, u)) @ (0.5 * w[:, None] * legendre)).T)
+    out.flags.writeable = False
+    return out
 
 
 def smooth_moments(v: np.ndarray, segments: Segments, shift: float = 0.0) -> np.ndarray:
@@ -516,12 +520,12 @@ def smooth_moments(v: np.ndarray, segments: Segments, shift: float = 0.0) -> np.
         seg = x[st : en + 1]
         ext = np.concatenate([seg, seg[-2:0:-1]])
         n = ext.shape[0]
-        response = _legendre_responses(n)
+        # The moments are real: half the spectrum (the response of -w is the conjugate of w's).
+        spectrum = np.fft.rfft(ext)
         if shift != 0.0:
-            response = response * np.exp(1j * 2.0 * np.pi * np.fft.fftfreq(n) * shift)[:, None]
-        spectrum = np.fft.fft(ext)
-        moments = np.fft.ifft(spectrum[:, None] * response, axis=0).real
-        mu[st:en, :] = moments[: m - 1]
+            spectrum = spectrum * np.exp(1j * 2.0 * np.pi * np.fft.rfftfreq(n) * shift)
+        moments = np.fft.irfft(spectrum[None, :] * _legendre_responses(n), n, axis=1)
+        mu[st:en, :] = moments[:, : m - 1].T
     return mu
 
 
