@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import signal
 import sys
 import threading
@@ -57,6 +58,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 EXIT_USAGE = 2
+#: The reader of stdout closed the pipe: 128 + SIGPIPE, what a shell reports for such a tool.
+EXIT_BROKEN_PIPE = 141
 
 
 class UserError(Exception):
@@ -164,7 +167,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                 # identify is flagged, an impossible input is an error): numpy's notes
                 # about them are for -vv, not for the user.
                 warnings.simplefilter("ignore", RuntimeWarning)
-            return int(module.main(args) or 0)
+            code = int(module.main(args) or 0)
+            sys.stdout.flush()  # a closed pipe shows here, not at the interpreter's exit
+            return code
+    except BrokenPipeError:
+        # The reader went away (`dcobserver replay --json rec.mcap | head`): it has what it
+        # wanted. Stop quietly, as a shell tool killed by SIGPIPE does, and point stdout at
+        # /dev/null so that the interpreter's last flush does not fail again.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except _user_error_types() as exc:
         print(f"dcobserver {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -156,3 +156,21 @@ def test_simulate_changes_and_thermal_time_constant(tmp_path):
         res = run("simulate", str(tmp_path / "x.mcap"), "--change", bad, cwd=tmp_path)
         assert res.returncode == 2 and fragment in res.stderr
         assert len(res.stderr.strip().splitlines()) == 1
+
+
+def test_a_reader_that_closes_the_pipe_ends_the_command_quietly(tmp_path):
+    """``dcobserver replay --json rec.mcap | head -1``: the reader leaves after one line; the
+    command stops with the shell's SIGPIPE status and no traceback."""
+    rec = ROOT / "tests" / "replay" / "data" / "p12_3s_1khz.mcap"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "observer.cli", "replay", "--json", "--no-progress", str(rec)],
+        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert proc.stdout is not None and proc.stderr is not None
+    first = proc.stdout.readline()
+    assert json.loads(first)["index"] == 0
+    proc.stdout.close()  # what `head -1` does after its line
+    stderr = proc.stderr.read()
+    assert proc.wait(timeout=300) == 141, stderr
+    assert "Traceback" not in stderr and "BrokenPipeError" not in stderr, stderr
