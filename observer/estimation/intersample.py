@@ -486,7 +486,6 @@ MIN_SPECTRAL_SEGMENT = 16
 
 
 @functools.lru_cache(maxsize=32)
-@functools.lru_cache(maxsize=8)
 def _legendre_responses(n: int) -> np.ndarray:
     """``(3, n // 2 + 1)``: the three interval moments of ``exp(j w u)``, ``u`` in [0, 1], at the
     real FFT's bins (read-only; a window's length repeats, so it is cached)."""

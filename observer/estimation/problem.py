@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -220,29 +221,39 @@ class WindingProblem:
         )  # fmt: skip
         return out, initial
 
-    def offset_column(self, theta: np.ndarray, where: slice = slice(None)) -> np.ndarray:
-        """d(residual)/d(voltage offset) at ``theta``: the residual's change per volt added.
+    def moment_columns(self, theta: np.ndarray, changes: Sequence[np.ndarray]) -> np.ndarray:
+        """``(covered, len(changes))``: the residual's change at ``theta`` for each change of the
+        voltage's interval moments.
 
         The residual is affine in the voltage (initial currents projected out
-        again), so one more evaluation with every interval's mean raised by
-        1 V gives it exactly. ``where``: only the intervals in this slice.
+        again), so one more evaluation per change gives it exactly; the
+        residual at ``theta`` is evaluated once for all of them.
         """
         resistance, inductance, k, shift = self.unpack(theta)
-        mu = self.mu(shift, self.lag_of(theta)).copy()
-        mu[where, 0] += 1.0
-        raised, _ = self._simulated(resistance, inductance, k, mu)
-        return raised - self.residual(theta)
+        mu = self.mu(shift, self.lag_of(theta))
+        base = self.residual(theta)
+        return np.column_stack(
+            [self._simulated(resistance, inductance, k, mu + d)[0] - base for d in changes]
+        )
+
+    def offset_moments(self, where: slice = slice(None)) -> np.ndarray:
+        """The moments' change of every interval's mean raised by 1 V (only in ``where``)."""
+        d = np.zeros_like(self.inp.mu)
+        d[where, 0] = 1.0
+        return d
+
+    def input_moments(self, theta: np.ndarray, dv: np.ndarray) -> np.ndarray:
+        """The moments' change of ``dv`` (V, per sample) added to the voltage, at ``theta``."""
+        return smooth_moments(dv, self.inp.segments, self.unpack(theta)[3])
+
+    def offset_column(self, theta: np.ndarray, where: slice = slice(None)) -> np.ndarray:
+        """d(residual)/d(voltage offset) at ``theta``: the residual's change per volt added
+        (:meth:`moment_columns`). ``where``: only the intervals in this slice."""
+        return self.moment_columns(theta, [self.offset_moments(where)])[:, 0]
 
     def input_column(self, theta: np.ndarray, dv: np.ndarray) -> np.ndarray:
-        """The residual's change at ``theta`` were ``dv`` (V, per sample) added to the voltage.
-
-        Affine in the voltage, like :meth:`offset_column`: the moments of ``dv``'s
-        band-limited reconstruction are added.
-        """
-        resistance, inductance, k, shift = self.unpack(theta)
-        mu = self.mu(shift, self.lag_of(theta)) + smooth_moments(dv, self.inp.segments, shift)
-        raised, _ = self._simulated(resistance, inductance, k, mu)
-        return raised - self.residual(theta)
+        """The residual's change at ``theta`` were ``dv`` (V, per sample) added to the voltage."""
+        return self.moment_columns(theta, [self.input_moments(theta, dv)])[:, 0]
 
     def alias_pieces(self) -> list[tuple[slice, float]]:
         """The window's pieces (slices of intervals) and each one's :attr:`alias_v` bound."""

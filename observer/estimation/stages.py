@@ -523,7 +523,19 @@ def std_stage(
     offset = np.zeros(3)
     mismatch = np.zeros(3)
     if measured:
-        column = problem.offset_column(theta)
+        # The residual's change per error of the voltage (one solve for every column): the
+        # sensor's offset, the alias of each piece, and the untold front ends' mismatch.
+        pieces = problem.alias_pieces()
+        changes = [problem.offset_moments()]
+        changes += [problem.offset_moments(where) for where, _ in pieces]
+        if problem.untold_front_end:
+            # Channels whose front ends nobody told: were they the commonest mismatch,
+            # the voltage would differ by this (its gain at the ripple moves L whole).
+            changes.append(
+                problem.input_moments(theta, unknown_mismatch(problem.voltage, problem.dt))
+            )
+        columns = problem.moment_columns(theta, changes)
+        column = columns[:, 0]
         if problem.fits_k:
             # The unknown offset as a free nuisance parameter: a window whose
             # current and speed barely vary cannot tell R*ia from K*if*omega.
@@ -534,18 +546,8 @@ def std_stage(
         # the front end leave (aliasing; locked to the samples on a steady
         # bridge, so it does not average out over the window).
         k = 3 if problem.fits_k else 2
-        pieces = problem.alias_pieces()
-        columns = [column] + [problem.offset_column(theta, where) for where, _ in pieces]
-        if problem.untold_front_end:
-            # Channels whose front ends nobody told: were they the commonest mismatch,
-            # the voltage would differ by this (its gain at the ripple moves L whole).
-            columns.append(
-                problem.input_column(theta, unknown_mismatch(problem.voltage, problem.dt))
-            )
         # The parameters' moves per volt of each error (one solve for every column).
-        per_volt = np.abs(
-            np.linalg.lstsq(fit.jacobian, np.column_stack(columns), rcond=None)[0][:k]
-        )
+        per_volt = np.abs(np.linalg.lstsq(fit.jacobian, columns, rcond=None)[0][:k])
         offset[:k] = per_volt[:, 0] * OFFSET_SHARE * float(np.mean(np.abs(problem.voltage)))
         if pieces:
             # The same error over the whole window (a steady bridge) or one per piece
