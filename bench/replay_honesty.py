@@ -24,21 +24,19 @@ from pathlib import Path
 
 import numpy as np
 
-#: Parameter -> (circuit, key in the estimate message, motor field, tolerance).
-PARAMETERS = {
-    "Rf": ("field", "R", "field_resistance_ohm", 0.01),
-    "Lf": ("field", "L", "field_inductance_h", 0.01),
-    "Ra": ("armature", "R", "armature_resistance_ohm", 0.02),
-    "La": ("armature", "L", "armature_inductance_h", 0.05),
-    "K": ("armature", "K", "emf_constant_h", 0.01),
-}
+from bench.accuracy_rates import PARAMETERS
+from bench.window_honesty import NAMES, TOLERANCE
+
+#: Parameter -> the issue's tolerance (relative).
+TOLERANCES = dict(zip(NAMES, (float(t) for t in TOLERANCE), strict=True))
 
 
 def score(lines: list[dict], truth: dict[str, float], after_s: float) -> dict[str, dict]:
     """Per parameter: median |z|, and the ok share with its coverage and tolerance shares."""
     rows = [r for r in lines if "armature" in r and r["t_ns"] / 1e9 >= after_s]
     out: dict[str, dict] = {}
-    for name, (circuit, key, _, tol) in PARAMETERS.items():
+    for name, (circuit, key, _) in PARAMETERS.items():
+        tol = TOLERANCES[name]
         raw = np.array([_num(r[circuit]["raw"].get(key)) for r in rows])
         rel = np.array([_num(r[circuit]["rel_std"].get(key)) for r in rows])
         ok = np.array([r[circuit]["quality"].get(key) == "ok" for r in rows], dtype=bool)
