@@ -58,6 +58,8 @@ FRONT_ENDS: dict[str, tuple[str, str, bool]] = {
     "none": ("none", "none", True),
     "mixed": ("rc1@fs/4", "butter2@fs/4", True),
     "mixed-untold": ("rc1@fs/4", "butter2@fs/4", False),
+    "bare-v": ("none", "butter2@fs/4", True),
+    "bare-v-untold": ("none", "butter2@fs/4", False),
 }
 
 

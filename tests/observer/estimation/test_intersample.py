@@ -16,6 +16,7 @@ from observer.estimation.intersample import (
     build_input,
     choose_model,
     cubic_moments,
+    current_settling,
     find_switching,
     hold_moments,
     rail_samples,
@@ -211,3 +212,34 @@ def test_a_bridges_ripple_is_told_from_noise_and_a_held_reference(mains, fs):
     assert mains_ripple_share(rng.normal(size=int(fs)), 1 / fs) < 0.1
     setpoints = np.repeat(np.cumsum(rng.normal(size=int(fs) // 100)), 100)
     assert mains_ripple_share(setpoints, 1 / fs) < 0.1
+
+
+@pytest.mark.parametrize("filtered", [False, True])
+def test_a_current_filtered_apart_from_its_voltage_is_given_time_to_settle(filtered):
+    """An RL winding fed by an unfiltered bridge voltage: its current bends at every
+    firing. Sampled bare, the next sample after a jump is on the new curve (no settling);
+    behind an RC at fs/4 (time constant 0.64 samples) the bend rings out over ~3 samples
+    (e**-1/0.64 per sample down to 1 %)."""
+    fine = 40
+    dt_fine = 1 / (FS * fine)
+    t = np.arange(4000 * fine) * dt_fine
+    v = bridge_voltage(t, alpha_deg=40.0) + 150.0
+    r, inductance = 3.5, 0.02
+    a = math.exp(-r * dt_fine / inductance)
+    i = np.empty_like(v)
+    acc = 0.0
+    for k, vk in enumerate(v):
+        acc = a * acc + (1 - a) * vk / r
+        i[k] = acc
+    if filtered:
+        i = first_order(i, dt_fine, 1 / (2 * np.pi * FS / 4))
+    rng = np.random.default_rng(1)
+    vs = v[::fine] + rng.normal(0, 0.3, 4000)
+    i_s = i[::fine] + rng.normal(0, 0.01, 4000)
+    sw = find_switching(vs)
+    assert sw.switched
+    m = current_settling(i_s, vs, sw)
+    if filtered:
+        assert m >= 3
+    else:
+        assert m == 0
