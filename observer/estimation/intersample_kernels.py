@@ -31,9 +31,15 @@ closed form (variable projection over ``K`` and every segment's ``i0``).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import cast
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.core.errors import TypingError
+from numba.extending import intrinsic
 
 from observer.estimation.kernels import geometric_energy
 
@@ -258,9 +264,12 @@ def plain_moment_swarm_costs(
 
 # ---------------------------------------------------------------- the fast swarm cost
 
-#: Particles are processed in whole AVX2 vectors of doubles: the swarm is padded
-#: to a multiple of this (the padding repeats the last particle).
-LANES = 4
+#: Bytes of one SIMD register the fast kernel fills (AVX2: four doubles, eight floats).
+VECTOR_BYTES = 32
+
+#: Doubles per vector. The swarm is padded to whole blocks of :data:`BLOCK_VECTORS`
+#: vectors (the padding repeats the last particle).
+LANES = VECTOR_BYTES // 8
 
 #: Rows of the particle-major work array of :func:`moment_swarm_costs`: the
 #: states and sums one particle carries along a segment, then its constants.
@@ -274,318 +283,239 @@ _ROWS = 13
 #: also h_e, s_de, s_ee, s_eg (+2 more for its moments).
 FMAS_PER_PARTICLE_SAMPLE = {(False, 1): 5, (False, 3): 7, (True, 1): 9, (True, 3): 13}
 
+#: Vectors of particles one block carries through the samples: (fit K?) -> count.
+#: Each state is a chain of one FMA (4 cycles) per sample, so a block needs at
+#: least 8 FMAs per sample to keep both FMA pipes busy, and its states and
+#: constants must fit the 16 vector registers. With ``K`` fitted one vector does
+#: (9 or 13 FMAs, 13 registers); two spill and ran at half the speed. Without,
+#: two vectors (10 or 14 FMAs): one ran ~30 % slower (latency), three spilled.
+_FIT_VECTORS = 1
+_PLAIN_VECTORS = 2
+BLOCK_VECTORS = {False: _PLAIN_VECTORS, True: _FIT_VECTORS}
 
-@njit(nogil=True, cache=True, fastmath={"contract"})
-def _moment(mu: np.ndarray, mu_emf: np.ndarray, held: bool, k_held: float, k: int, j: int) -> float:
-    """Moment ``j`` of interval ``k`` of the winding voltage, less ``K*`` EMF when ``K`` is held."""
-    if held:
-        return mu[k, j] - k_held * mu_emf[k, j]
-    return mu[k, j]
+#: Samples per tile: every block of the swarm runs through a tile before the next,
+#: so the tile's inputs (56 bytes a sample) stay in the core's cache.
+_TILE = 2048
 
 
-@njit(nogil=True, cache=True, fastmath={"contract"})
-def _plain_hold(
-    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, held: bool,
-    k_held: float, st: int, en: int,
-) -> int:  # fmt: skip
-    """Intervals of a segment in fours, held input, no fitted ``K``: the next interval left.
+def _swarm_block(fit: bool, moments: int, n_vec: int) -> Callable[..., None]:
+    """A numba intrinsic running ``n_vec`` vectors of particles through samples ``k0 .. k1-1``.
 
-    Each particle's state is loaded and stored once per four samples, so the
-    loop is bound by its FMAs, not by memory (one pass per sample is bound by
-    the stores, at about half the speed).
+    The returned ``block(w, y, mu, mu_emf, j, k0, k1)`` loads the states and
+    constants of the particles ``j ..`` (``n_vec`` whole vectors) from the
+    work array ``w`` (:data:`_ROWS` rows, particle-major), keeps the states in
+    vector registers while it takes the intervals ``k0 .. k1-1`` one after
+    another (each: the sums of the sample, then the update by its input), and
+    stores them back. Written as LLVM vector IR because it is a blocking the
+    loop vectoriser does not produce (it vectorises the innermost loop, the
+    particles; here the samples run inside the particle block). The element
+    type is the arrays' (float64: :data:`LANES` lanes, float32: twice as many),
+    all C-contiguous; ``mu`` holds ``(p, q, z)`` per interval (with ``K`` held,
+    less ``K`` times the EMF's), ``mu_emf`` the EMF's (read when ``fit``).
     """
-    width = w.shape[1]
-    k = st
-    while k + 4 <= en:
-        y0, y1, y2, y3 = y[k], y[k + 1], y[k + 2], y[k + 3]
-        u0 = _moment(mu, mu_emf, held, k_held, k, 0)
-        u1 = _moment(mu, mu_emf, held, k_held, k + 1, 0)
-        u2 = _moment(mu, mu_emf, held, k_held, k + 2, 0)
-        u3 = _moment(mu, mu_emf, held, k_held, k + 3, 0)
-        for j in range(width):
-            h = w[_H, j]
-            g = w[_G, j]
-            s = w[_SDD, j]
-            t = w[_SDG, j]
-            a = w[_A, j]
-            c = w[_C0, j]
-            ag = w[_AG, j]
-            d = y0 - c * h
-            s += d * d
-            t += d * g
-            h = a * h + u0
-            g = ag * g + _G_FLOOR
-            d = y1 - c * h
-            s += d * d
-            t += d * g
-            h = a * h + u1
-            g = ag * g + _G_FLOOR
-            d = y2 - c * h
-            s += d * d
-            t += d * g
-            h = a * h + u2
-            g = ag * g + _G_FLOOR
-            d = y3 - c * h
-            w[_SDD, j] = s + d * d
-            w[_SDG, j] = t + d * g
-            w[_H, j] = a * h + u3
-            w[_G, j] = ag * g + _G_FLOOR
-        k += 4
-    return k
+    state_rows = [_H, _G, _SDD, _SDG] + ([_HE, _SDE, _SEE, _SEG] if fit else [])
+
+    def typer(typingctx, w, y, mu, mu_emf, j, k0, k1):
+        for name, ty, nd in (("w", w, 2), ("y", y, 1), ("mu", mu, 2), ("mu_emf", mu_emf, 2)):
+            if not (isinstance(ty, types.Array) and ty.layout == "C" and ty.ndim == nd):
+                raise TypingError(f"swarm block: {name} must be a C-contiguous {nd}-d array")
+            if ty.dtype != w.dtype or ty.dtype not in (types.float64, types.float32):
+                raise TypingError("swarm block: arrays must all be float64 or all float32")
+        sig = types.void(w, y, mu, mu_emf, types.intp, types.intp, types.intp)
+        return sig, codegen
+
+    def codegen(context, builder, signature, args):
+        w_ty, y_ty, mu_ty, emf_ty = signature.args[:4]
+        fty = context.get_value_type(w_ty.dtype)
+        size = context.get_abi_sizeof(fty)
+        lanes = VECTOR_BYTES // size
+        vty = ir.VectorType(fty, lanes)
+        intp = context.get_value_type(types.intp)
+        i32 = ir.IntType(32)
+        suffix = "f64" if size == 8 else "f32"
+        fma_fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(vty, [vty, vty, vty]), f"llvm.fma.v{lanes}{suffix}"
+        )
+        w, y, mu, mu_emf = (
+            context.make_array(t)(context, builder, a)
+            for t, a in zip((w_ty, y_ty, mu_ty, emf_ty), args[:4], strict=True)
+        )
+        j, k0, k1 = args[4:]
+        width = cgutils.unpack_tuple(builder, w.shape, 2)[1]
+        undef = ir.Constant(vty, ir.Undefined)
+        splat = ir.Constant(ir.VectorType(i32, lanes), [0] * lanes)
+
+        def fma(x, m, c):
+            return builder.call(fma_fn, [x, m, c])
+
+        def row(r: int, v: int):
+            col = builder.add(j, ir.Constant(intp, v * lanes))
+            idx = builder.add(builder.mul(ir.Constant(intp, r), width), col)
+            return builder.bitcast(builder.gep(w.data, [idx]), vty.as_pointer())
+
+        def broadcast(arr, idx):
+            x = builder.load(builder.gep(arr.data, [idx]))
+            return builder.shuffle_vector(
+                builder.insert_element(undef, x, ir.Constant(i32, 0)), undef, splat
+            )
+
+        init = [{r: builder.load(row(r, v), align=size) for r in state_rows} for v in range(n_vec)]
+        const = []
+        for v in range(n_vec):
+            c = {r: builder.load(row(r, v), align=size) for r in (_A, _C0, _AG, _R1, _R2)}
+            c[_C0] = builder.fneg(c[_C0])  # d = y - c0*h as one FMA
+            const.append(c)
+        floor = ir.Constant(vty, [ir.Constant(fty, _G_FLOOR)] * lanes)
+        entry = builder.basic_block
+        header = builder.append_basic_block("block.header")
+        body = builder.append_basic_block("block.body")
+        done = builder.append_basic_block("block.done")
+        builder.branch(header)
+        builder.position_at_end(header)
+        k = builder.phi(intp)
+        k.add_incoming(k0, entry)
+        state = []
+        for v in range(n_vec):
+            phis = {}
+            for r in state_rows:
+                phis[r] = builder.phi(vty)
+                phis[r].add_incoming(init[v][r], entry)
+            state.append(phis)
+        builder.cbranch(builder.icmp_signed("<", k, k1), body, done)
+        builder.position_at_end(body)
+        yk = broadcast(y, k)
+        k3 = builder.mul(k, ir.Constant(intp, 3))
+        inputs = []
+        for arr in (mu, mu_emf) if fit else (mu,):
+            inputs.append(
+                [broadcast(arr, builder.add(k3, ir.Constant(intp, m))) for m in range(moments)]
+            )
+        updated = []
+        for v in range(n_vec):
+            s, c = state[v], const[v]
+            h, g = s[_H], s[_G]
+            d = fma(c[_C0], h, yk)
+            new = {_SDD: fma(d, d, s[_SDD]), _SDG: fma(d, g, s[_SDG])}
+            forced = [(_H, h, inputs[0])]
+            if fit:
+                he = s[_HE]
+                new[_SDE] = fma(d, he, s[_SDE])
+                new[_SEE] = fma(he, he, s[_SEE])
+                new[_SEG] = fma(he, g, s[_SEG])
+                forced.append((_HE, he, inputs[1]))
+            for r, x, u in forced:
+                drive = u[0] if moments == 1 else fma(c[_R2], u[2], fma(c[_R1], u[1], u[0]))
+                new[r] = fma(c[_A], x, drive)
+            new[_G] = fma(c[_AG], g, floor)
+            updated.append(new)
+        latch = builder.basic_block
+        k.add_incoming(builder.add(k, ir.Constant(intp, 1)), latch)
+        for v in range(n_vec):
+            for r in state_rows:
+                state[v][r].add_incoming(updated[v][r], latch)
+        back = builder.branch(header)
+        # One sample per pass, as written (LLVM unrolled it 3-5x, no faster when measured):
+        # what `bench.kernel_speed`'s assembly check counts.
+        loop_id = builder.module.add_metadata([])
+        loop_id.operands = (
+            loop_id,
+            builder.module.add_metadata(
+                [ir.MetaDataString(builder.module, "llvm.loop.unroll.disable")]
+            ),
+        )
+        back.set_metadata("llvm.loop", loop_id)
+        builder.position_at_end(done)
+        for v in range(n_vec):
+            for r in state_rows:
+                builder.store(state[v][r], row(r, v), align=size)
+        return context.get_dummy_value()
+
+    return cast("Callable[..., None]", intrinsic(typer))
 
 
-@njit(nogil=True, cache=True, fastmath={"contract"})
-def _plain_moments(
-    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, held: bool,
-    k_held: float, st: int, en: int,
-) -> int:  # fmt: skip
-    """:func:`_plain_hold` with three moments per interval."""
-    width = w.shape[1]
-    k = st
-    while k + 4 <= en:
-        y0, y1, y2, y3 = y[k], y[k + 1], y[k + 2], y[k + 3]
-        p0 = _moment(mu, mu_emf, held, k_held, k, 0)
-        q0 = _moment(mu, mu_emf, held, k_held, k, 1)
-        z0 = _moment(mu, mu_emf, held, k_held, k, 2)
-        p1 = _moment(mu, mu_emf, held, k_held, k + 1, 0)
-        q1 = _moment(mu, mu_emf, held, k_held, k + 1, 1)
-        z1 = _moment(mu, mu_emf, held, k_held, k + 1, 2)
-        p2 = _moment(mu, mu_emf, held, k_held, k + 2, 0)
-        q2 = _moment(mu, mu_emf, held, k_held, k + 2, 1)
-        z2 = _moment(mu, mu_emf, held, k_held, k + 2, 2)
-        p3 = _moment(mu, mu_emf, held, k_held, k + 3, 0)
-        q3 = _moment(mu, mu_emf, held, k_held, k + 3, 1)
-        z3 = _moment(mu, mu_emf, held, k_held, k + 3, 2)
-        for j in range(width):
-            h = w[_H, j]
-            g = w[_G, j]
-            s = w[_SDD, j]
-            t = w[_SDG, j]
-            a = w[_A, j]
-            c = w[_C0, j]
-            ag = w[_AG, j]
-            r1 = w[_R1, j]
-            r2 = w[_R2, j]
-            d = y0 - c * h
-            s += d * d
-            t += d * g
-            h = a * h + (p0 + r1 * q0 + r2 * z0)
-            g = ag * g + _G_FLOOR
-            d = y1 - c * h
-            s += d * d
-            t += d * g
-            h = a * h + (p1 + r1 * q1 + r2 * z1)
-            g = ag * g + _G_FLOOR
-            d = y2 - c * h
-            s += d * d
-            t += d * g
-            h = a * h + (p2 + r1 * q2 + r2 * z2)
-            g = ag * g + _G_FLOOR
-            d = y3 - c * h
-            w[_SDD, j] = s + d * d
-            w[_SDG, j] = t + d * g
-            w[_H, j] = a * h + (p3 + r1 * q3 + r2 * z3)
-            w[_G, j] = ag * g + _G_FLOOR
-        k += 4
-    return k
+_fit_hold_block = _swarm_block(True, 1, BLOCK_VECTORS[True])
+_fit_moments_block = _swarm_block(True, 3, BLOCK_VECTORS[True])
+_plain_hold_block = _swarm_block(False, 1, BLOCK_VECTORS[False])
+_plain_moments_block = _swarm_block(False, 3, BLOCK_VECTORS[False])
 
 
-@njit(nogil=True, cache=True, fastmath={"contract"})
-def _plain_tail(
-    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, held: bool,
-    k_held: float, k0: int, en: int,
-) -> None:  # fmt: skip
-    """Intervals ``k0 .. en-1`` one at a time, then the segment's last sample ``en``."""
-    width = w.shape[1]
-    for k in range(k0, en):
-        yk = y[k]
-        p = _moment(mu, mu_emf, held, k_held, k, 0)
-        q = _moment(mu, mu_emf, held, k_held, k, 1)
-        z = _moment(mu, mu_emf, held, k_held, k, 2)
-        for j in range(width):
-            h = w[_H, j]
-            g = w[_G, j]
-            d = yk - w[_C0, j] * h
-            w[_SDD, j] += d * d
-            w[_SDG, j] += d * g
-            w[_H, j] = w[_A, j] * h + (p + w[_R1, j] * q + w[_R2, j] * z)
-            w[_G, j] = w[_AG, j] * g + _G_FLOOR
-    yk = y[en]
-    for j in range(width):
-        d = yk - w[_C0, j] * w[_H, j]
-        w[_SDD, j] += d * d
-        w[_SDG, j] += d * w[_G, j]
+@njit(nogil=True, cache=True)
+def _block_width(x: np.ndarray, fit: bool) -> int:
+    """Particles (lanes) of one block, in ``x``'s element type."""
+    return (VECTOR_BYTES // x.itemsize) * (_FIT_VECTORS if fit else _PLAIN_VECTORS)
 
 
-@njit(nogil=True, cache=True, fastmath={"contract"})
+@njit(nogil=True, cache=True)
 def _fit_hold(
     w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
-) -> int:
-    """Intervals of a segment in fours, held input, ``K`` fitted: the next interval left."""
-    width = w.shape[1]
-    k = st
-    while k + 4 <= en:
-        y0, y1, y2, y3 = y[k], y[k + 1], y[k + 2], y[k + 3]
-        u0, u1, u2, u3 = mu[k, 0], mu[k + 1, 0], mu[k + 2, 0], mu[k + 3, 0]
-        e0, e1, e2, e3 = mu_emf[k, 0], mu_emf[k + 1, 0], mu_emf[k + 2, 0], mu_emf[k + 3, 0]
-        for j in range(width):
-            h = w[_H, j]
-            he = w[_HE, j]
-            g = w[_G, j]
-            sdd = w[_SDD, j]
-            sdg = w[_SDG, j]
-            sde = w[_SDE, j]
-            see = w[_SEE, j]
-            seg = w[_SEG, j]
-            a = w[_A, j]
-            c = w[_C0, j]
-            ag = w[_AG, j]
-            d = y0 - c * h
-            sdd += d * d
-            sdg += d * g
-            sde += d * he
-            see += he * he
-            seg += he * g
-            h = a * h + u0
-            he = a * he + e0
-            g = ag * g + _G_FLOOR
-            d = y1 - c * h
-            sdd += d * d
-            sdg += d * g
-            sde += d * he
-            see += he * he
-            seg += he * g
-            h = a * h + u1
-            he = a * he + e1
-            g = ag * g + _G_FLOOR
-            d = y2 - c * h
-            sdd += d * d
-            sdg += d * g
-            sde += d * he
-            see += he * he
-            seg += he * g
-            h = a * h + u2
-            he = a * he + e2
-            g = ag * g + _G_FLOOR
-            d = y3 - c * h
-            w[_SDD, j] = sdd + d * d
-            w[_SDG, j] = sdg + d * g
-            w[_SDE, j] = sde + d * he
-            w[_SEE, j] = see + he * he
-            w[_SEG, j] = seg + he * g
-            w[_H, j] = a * h + u3
-            w[_HE, j] = a * he + e3
-            w[_G, j] = ag * g + _G_FLOOR
-        k += 4
-    return k
+) -> None:
+    """The intervals ``st .. en-1`` of a segment, held input, ``K`` fitted, block by block."""
+    step = _block_width(w, True)
+    for k0 in range(st, en, _TILE):
+        k1 = min(k0 + _TILE, en)
+        for j in range(0, w.shape[1], step):
+            _fit_hold_block(w, y, mu, mu_emf, j, k0, k1)
 
 
-@njit(nogil=True, cache=True, fastmath={"contract"})
+@njit(nogil=True, cache=True)
 def _fit_moments(
     w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
-) -> int:
+) -> None:
     """:func:`_fit_hold` with three moments per interval."""
-    width = w.shape[1]
-    k = st
-    while k + 4 <= en:
-        y0, y1, y2, y3 = y[k], y[k + 1], y[k + 2], y[k + 3]
-        p0, q0, z0 = mu[k, 0], mu[k, 1], mu[k, 2]
-        p1, q1, z1 = mu[k + 1, 0], mu[k + 1, 1], mu[k + 1, 2]
-        p2, q2, z2 = mu[k + 2, 0], mu[k + 2, 1], mu[k + 2, 2]
-        p3, q3, z3 = mu[k + 3, 0], mu[k + 3, 1], mu[k + 3, 2]
-        pe0, qe0, ze0 = mu_emf[k, 0], mu_emf[k, 1], mu_emf[k, 2]
-        pe1, qe1, ze1 = mu_emf[k + 1, 0], mu_emf[k + 1, 1], mu_emf[k + 1, 2]
-        pe2, qe2, ze2 = mu_emf[k + 2, 0], mu_emf[k + 2, 1], mu_emf[k + 2, 2]
-        pe3, qe3, ze3 = mu_emf[k + 3, 0], mu_emf[k + 3, 1], mu_emf[k + 3, 2]
-        for j in range(width):
-            h = w[_H, j]
-            he = w[_HE, j]
-            g = w[_G, j]
-            a = w[_A, j]
-            c = w[_C0, j]
-            ag = w[_AG, j]
-            r1 = w[_R1, j]
-            r2 = w[_R2, j]
-            sdd = w[_SDD, j]
-            sdg = w[_SDG, j]
-            sde = w[_SDE, j]
-            see = w[_SEE, j]
-            seg = w[_SEG, j]
-            d = y0 - c * h
-            sdd += d * d
-            sdg += d * g
-            sde += d * he
-            see += he * he
-            seg += he * g
-            h = a * h + (p0 + r1 * q0 + r2 * z0)
-            he = a * he + (pe0 + r1 * qe0 + r2 * ze0)
-            g = ag * g + _G_FLOOR
-            d = y1 - c * h
-            sdd += d * d
-            sdg += d * g
-            sde += d * he
-            see += he * he
-            seg += he * g
-            h = a * h + (p1 + r1 * q1 + r2 * z1)
-            he = a * he + (pe1 + r1 * qe1 + r2 * ze1)
-            g = ag * g + _G_FLOOR
-            d = y2 - c * h
-            sdd += d * d
-            sdg += d * g
-            sde += d * he
-            see += he * he
-            seg += he * g
-            h = a * h + (p2 + r1 * q2 + r2 * z2)
-            he = a * he + (pe2 + r1 * qe2 + r2 * ze2)
-            g = ag * g + _G_FLOOR
-            d = y3 - c * h
-            w[_SDD, j] = sdd + d * d
-            w[_SDG, j] = sdg + d * g
-            w[_SDE, j] = sde + d * he
-            w[_SEE, j] = see + he * he
-            w[_SEG, j] = seg + he * g
-            w[_H, j] = a * h + (p3 + r1 * q3 + r2 * z3)
-            w[_HE, j] = a * he + (pe3 + r1 * qe3 + r2 * ze3)
-            w[_G, j] = ag * g + _G_FLOOR
-        k += 4
-    return k
+    step = _block_width(w, True)
+    for k0 in range(st, en, _TILE):
+        k1 = min(k0 + _TILE, en)
+        for j in range(0, w.shape[1], step):
+            _fit_moments_block(w, y, mu, mu_emf, j, k0, k1)
+
+
+@njit(nogil=True, cache=True)
+def _plain_hold(
+    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
+) -> None:
+    """The intervals ``st .. en-1`` of a segment, held input, no fitted ``K``."""
+    step = _block_width(w, False)
+    for k0 in range(st, en, _TILE):
+        k1 = min(k0 + _TILE, en)
+        for j in range(0, w.shape[1], step):
+            _plain_hold_block(w, y, mu, mu_emf, j, k0, k1)
+
+
+@njit(nogil=True, cache=True)
+def _plain_moments(
+    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
+) -> None:
+    """:func:`_plain_hold` with three moments per interval."""
+    step = _block_width(w, False)
+    for k0 in range(st, en, _TILE):
+        k1 = min(k0 + _TILE, en)
+        for j in range(0, w.shape[1], step):
+            _plain_moments_block(w, y, mu, mu_emf, j, k0, k1)
 
 
 @njit(nogil=True, cache=True, fastmath={"contract"})
-def _fit_tail(
-    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, k0: int, en: int
-) -> None:
-    """Intervals ``k0 .. en-1`` one at a time (``K`` fitted), then the last sample ``en``."""
-    width = w.shape[1]
-    for k in range(k0, en):
-        yk = y[k]
-        p, q, z = mu[k, 0], mu[k, 1], mu[k, 2]
-        pe, qe, ze = mu_emf[k, 0], mu_emf[k, 1], mu_emf[k, 2]
-        for j in range(width):
-            h = w[_H, j]
-            he = w[_HE, j]
-            g = w[_G, j]
-            d = yk - w[_C0, j] * h
-            w[_SDD, j] += d * d
-            w[_SDG, j] += d * g
-            w[_SDE, j] += d * he
-            w[_SEE, j] += he * he
-            w[_SEG, j] += he * g
-            r1 = w[_R1, j]
-            r2 = w[_R2, j]
-            w[_H, j] = w[_A, j] * h + (p + r1 * q + r2 * z)
-            w[_HE, j] = w[_A, j] * he + (pe + r1 * qe + r2 * ze)
-            w[_G, j] = w[_AG, j] * g + _G_FLOOR
-    yk = y[en]
-    for j in range(width):
-        he = w[_HE, j]
+def _last_sample(w: np.ndarray, yk: float, fit: bool) -> None:
+    """The sums of a segment's last sample (no interval follows it)."""
+    for j in range(w.shape[1]):
         g = w[_G, j]
         d = yk - w[_C0, j] * w[_H, j]
         w[_SDD, j] += d * d
         w[_SDG, j] += d * g
-        w[_SDE, j] += d * he
-        w[_SEE, j] += he * he
-        w[_SEG, j] += he * g
+        if fit:
+            he = w[_HE, j]
+            w[_SDE, j] += d * he
+            w[_SEE, j] += he * he
+            w[_SEG, j] += he * g
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def _held_input(mu: np.ndarray, mu_emf: np.ndarray, k_held: float) -> np.ndarray:
+    """The moments of ``v - K*if*omega`` with ``K`` held (once per call, not per particle)."""
+    out = np.empty(mu.shape, mu.dtype)
+    for k in range(mu.shape[0]):
+        for m in range(3):
+            out[k, m] = mu[k, m] - k_held * mu_emf[k, m]
+    return out
 
 
 @njit(nogil=True, cache=True, fastmath={"contract"})
@@ -614,7 +544,10 @@ def moment_swarm_costs(
         (A*rad/s) over each interval; ``mu_emf`` is ignored when
         ``emf_mode == EMF_NONE``.
     current : (n,) array
-        Measured winding current (A).
+        Measured winding current (A). Its dtype sets the arithmetic of the
+        samples' loop: float64, or float32 (``mu`` and ``mu_emf`` then float32
+        too: twice the lanes, see ``python -m bench.kernel_speed`` for the error
+        it adds); the coefficients and the projections are float64 either way.
     starts, ends : (n_segments,) int arrays
         First and last sample of each segment (inclusive; intervals between
         segments are skipped).
@@ -636,16 +569,25 @@ def moment_swarm_costs(
     Notes
     -----
     The same cost as :func:`plain_moment_swarm_costs`, to rounding. The swarm
-    is laid out particle-major in one work array, padded to whole vectors of
-    :data:`LANES` doubles, so the particle loop vectorises without remainder
-    or aliasing checks, and the samples are taken four at a time so a
-    particle's state stays in registers between its loads and stores. The
-    forced responses are kept divided by ``c_0``, which saves a product per
-    sample. ``python -m bench.kernel_speed`` measures it against the FMA peak.
+    is laid out particle-major in one work array, padded to whole blocks of
+    :data:`BLOCK_VECTORS` vectors, and each block runs through a tile of
+    samples with its states in registers (:func:`_swarm_block`), so a sample
+    costs its FMAs and the broadcast of its inputs, not loads and stores of
+    the states. The forced responses are kept divided by ``c_0``, which saves
+    a product per sample; a held ``K``'s EMF is subtracted from the input once
+    per call. ``python -m bench.kernel_speed`` measures it against the FMA peak.
     """
     n_particles = positions.shape[0]
-    width = ((n_particles + LANES - 1) // LANES) * LANES
-    w = np.empty((_ROWS, width))
+    fit_k = emf_mode == EMF_FIT
+    held = emf_mode == EMF_HELD
+    y = np.ascontiguousarray(current)
+    u = np.ascontiguousarray(mu)
+    e = np.ascontiguousarray(mu_emf)
+    if held:
+        u = _held_input(u, e, emf_constant)
+    step = _block_width(y, fit_k)
+    width = ((n_particles + step - 1) // step) * step
+    w = np.empty((_ROWS, width), y.dtype)
     for j in range(width):
         p = min(j, n_particles - 1)
         r = positions[p, 0]
@@ -659,9 +601,6 @@ def moment_swarm_costs(
         w[_AG, j] = max(a, _A_FLOOR)
         w[_R1, j] = c1 / c0
         w[_R2, j] = c2 / c0
-    fit_k = emf_mode == EMF_FIT
-    held = emf_mode == EMF_HELD
-    k_held = emf_constant if held else 0.0
     big_a = np.zeros(width)
     big_b = np.zeros(width)
     big_c = np.zeros(width)
@@ -680,22 +619,20 @@ def moment_swarm_costs(
             w[_SEG, j] = 0.0
         if fit_k:
             if n_moments == 1:
-                k = _fit_hold(w, current, mu, mu_emf, st, en)
+                _fit_hold(w, y, u, e, st, en)
             else:
-                k = _fit_moments(w, current, mu, mu_emf, st, en)
-            _fit_tail(w, current, mu, mu_emf, k, en)
+                _fit_moments(w, y, u, e, st, en)
+        elif n_moments == 1:
+            _plain_hold(w, y, u, e, st, en)
         else:
-            if n_moments == 1:
-                k = _plain_hold(w, current, mu, mu_emf, held, k_held, st, en)
-            else:
-                k = _plain_moments(w, current, mu, mu_emf, held, k_held, st, en)
-            _plain_tail(w, current, mu, mu_emf, held, k_held, k, en)
+            _plain_moments(w, y, u, e, st, en)
+        _last_sample(w, y[en], fit_k)
         m_seg = en - st + 1
         for j in range(width):
-            a = w[_A, j]
-            c0 = w[_C0, j]
+            a = float(w[_A, j])
+            c0 = float(w[_C0, j])
             s_gg = geometric_energy(a, m_seg)
-            s_dg = w[_SDG, j]
+            s_dg = float(w[_SDG, j])
             big_a[j] += w[_SDD, j] - s_dg * s_dg / s_gg
             if fit_k:
                 s_eg = c0 * w[_SEG, j]

@@ -141,7 +141,7 @@ def test_scripts_have_help_and_reject_bad_arguments(script, option):
 
 
 def test_kernel_speed_quick_reports_full_width_loops(tmp_path, capsys):
-    """The fast kernel's inner loops hold one packed (ymm) FMA per FMA of the loop."""
+    """The fast kernel's inner loops hold one packed (ymm) FMA per FMA of a block, none scalar."""
     from bench import kernel_speed
 
     out = tmp_path / "kernel_speed.md"
@@ -151,8 +151,9 @@ def test_kernel_speed_quick_reports_full_width_loops(tmp_path, capsys):
     assert code == 0
     rows = _table_rows(out.read_text(encoding="utf-8"))
     for loop in ("_plain_hold", "_plain_moments", "_fit_hold", "_fit_moments"):
-        found, needed = rows[f"`{loop}`"]
-        assert int(found) == int(needed) > 0, loop
+        found, scalar, needed, passes = rows[f"`{loop}`"]
+        assert int(found) == int(needed) > 0 and passes == "1", loop
+        assert scalar == "0", loop
     field = rows["field, held voltage"]
     assert field[0] == "5" and field[1] == "5"  # particles, FMAs per particle-sample
     assert float(field[-1]) < 1e-12  # fast against plain

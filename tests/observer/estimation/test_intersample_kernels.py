@@ -115,14 +115,15 @@ def test_coefficients_are_continuous_where_the_series_takes_over():
             assert c == pytest.approx(x * (2 * j + 1) * np.trapezoid(w * leg, u), rel=1e-6)
 
 
-@pytest.mark.parametrize("n_particles", [1, 3, 4, 5, 23])
+@pytest.mark.parametrize("n_particles", [1, 3, 4, 5, 9, 23, 24])
 @pytest.mark.parametrize("mode", [ik.EMF_NONE, ik.EMF_FIT, ik.EMF_HELD])
 def test_the_fast_swarm_cost_equals_the_plain_reference(window, n_particles, mode):
     """The vectorised kernel computes the plain kernel's cost to rounding, for every layout.
 
-    Segments of 1, 2, 3 and 5 samples exercise the loops' remainders; particle
-    counts that are not whole vectors exercise the padding; a held input
-    (higher moments 0) is also taken by the cheaper loop.
+    Segments of 1, 2, 3 and 5 samples exercise the shortest runs of a block;
+    particle counts that are not whole blocks (4 particles with ``K`` fitted,
+    8 without) exercise the padding; a held input (higher moments 0) is also
+    taken by the cheaper loop.
     """
     dt, n = window["dt"], window["va"].size
     rng = np.random.default_rng(n_particles + 10 * mode)
@@ -145,6 +146,29 @@ def test_the_fast_swarm_cost_equals_the_plain_reference(window, n_particles, mod
             # Projecting K out subtracts sums the size of sum(y^2): rounding is relative to them.
             scale = float(current @ current)
             np.testing.assert_allclose(fast, plain, rtol=1e-9, atol=1e-13 * scale)
+
+
+@pytest.mark.parametrize("mode", [ik.EMF_NONE, ik.EMF_FIT, ik.EMF_HELD])
+def test_the_fast_swarm_cost_runs_segments_across_tiles(p12_recording, mode):
+    """A segment longer than a tile (the blocks run tile by tile) keeps its states between them."""
+    w = p12_recording.slice_time(0.0, 5.0)
+    dt = w.dt
+    va, ia, vf, i_f = (np.array(w[c]) for c in ("va", "ia", "vf", "if"))
+    n = va.size
+    assert n > 3 * ik._TILE
+    emf = kernels.emf_input(i_f, np.array(w["omega"]))
+    voltage, current = (va, ia) if mode else (vf, i_f)
+    box = np.log10([[2.5, 0.01], [5.0, 0.04]]) if mode else np.log10([[150, 30.0], [220, 80]])
+    pos = np.random.default_rng(mode).uniform(box[0], box[1], (24, 2))
+    starts = np.array([0, ik._TILE - 3])
+    ends = np.array([ik._TILE - 5, n - 1])
+    rng = np.random.default_rng(5)
+    mu = _hold(voltage) + rng.normal(0.0, 5.0, (n - 1, 3))
+    mu_emf = _hold(emf) + rng.normal(0.0, 1.0, (n - 1, 3))
+    args = (pos, mu, mu_emf, current, starts, ends, dt, True, mode, 1.1, 0.0)
+    plain = ik.plain_moment_swarm_costs(*args)
+    fast = ik.moment_swarm_costs(*args)
+    np.testing.assert_allclose(fast, plain, rtol=1e-9, atol=1e-13 * float(current @ current))
 
 
 @pytest.mark.parametrize("shift", [0.0, 0.3, -0.5, 0.999, 1.2, -1.5])
