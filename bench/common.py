@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from observer.estimation.motor import P12, MotorParameters
+from observer.recording import quantise
 from observer.simulation.simulate import NoiseLevels, simulate
 
 #: The paper's table: "given" values and the estimates per column
@@ -93,12 +94,19 @@ def p12_window(
     n_samples: int = WINDOW_SAMPLES,
     sample_rate_hz: float = SAMPLE_RATE_HZ,
     motor: MotorParameters = P12,
+    adc_bits: int | None = None,
 ) -> Window:
-    """A ``n_samples`` window of a simulated recording, a quarter of it before a field step."""
+    """A ``n_samples`` window of a simulated recording, a quarter of it before a field step.
+
+    With ``adc_bits``, the recording as a drive's ADC of that resolution measures
+    it (full scale :func:`adc_full_scale`), after the sensors' ``noise``.
+    """
     duration = LATEST_FIRST_STEP_S + n_samples / sample_rate_hz + 0.5
     rec = simulate(
         motor, duration_s=duration, sample_rate_hz=sample_rate_hz, noise=noise, seed=seed
     )
+    if adc_bits is not None:
+        rec = quantise(rec, adc_full_scale(motor), bits=adc_bits)
     step = field_step_index(rec["vf"])
     start = max(0, step - n_samples // 4)
     stop = start + n_samples

@@ -14,10 +14,14 @@ machine hits every method alike:
    (AVX2) make 8 FMA lanes per cycle, divided by the FMAs one particle-sample
    needs in that loop (5 for the field with a held voltage, 13 for the
    armature with ``K`` fitted and a three-moment EMF);
-3. **assembly**: each inner loop compiled afresh (the cache cannot be
-   inspected) and its packed (ymm) FMAs counted: the vector body must hold one
-   per FMA of the loop per sample it takes;
-4. **swarm**: this project's PSO (``pso.minimize``) against pyswarms'
+3. **float32**: the same kernel on float32 samples (eight lanes a vector),
+   timed with the others, and what it does to the estimate: windows of a
+   12-bit ADC recording minimised in float64 and float32, the difference
+   against the spread the sensor noise gives;
+4. **assembly**: each inner loop compiled afresh (the cache cannot be
+   inspected) and its packed (ymm) FMAs counted: one per FMA of a block's
+   sample, and no scalar ones;
+5. **swarm**: this project's PSO (``pso.minimize``) against pyswarms'
    ``GlobalBestPSO`` on the very same compiled cost and budget.
 
 Run ``python -m bench.kernel_speed --help``; the figures go to stdout and, as
@@ -92,6 +96,13 @@ class Case:
         return (x, p.inp.mu, p.mu_emf, p.current, seg.starts, seg.ends, p.dt, True,
                 p.emf_mode, k, self.noise_var)  # fmt: skip
 
+    def args32(self, x: np.ndarray) -> tuple[object, ...]:
+        """:meth:`args` with the samples' arrays in float32 (the float32 path)."""
+        a = list(self.args(x))
+        for i in (1, 2, 3):
+            a[i] = np.ascontiguousarray(a[i], dtype=np.float32)
+        return tuple(a)
+
     @functools.cached_property
     def n_moments(self) -> int:
         # Cached: it scans the window (~40-80 us), which must not be timed with the kernel.
@@ -133,36 +144,126 @@ class KernelTiming:
     case: Case
     plain_s: list[float]
     fast_s: list[float]
+    f32_s: list[float]
     max_rel_diff: float
+    f32_rel_diff: float
 
 
 def time_kernels(
     cases: list[Case], repeats: int, batch: int, rng: np.random.Generator
 ) -> tuple[list[KernelTiming], list[float]]:
-    """Plain and fast kernel times (s per call) of every case, and the clocks (GHz) between."""
+    """Plain, fast and float32 kernel times (s per call) of every case, and the clocks (GHz)."""
     xs = [rng.uniform(c.log_bounds[:, 0], c.log_bounds[:, 1], (c.n_particles, 2)) for c in cases]
     out = []
     for c, x in zip(cases, xs, strict=True):
         plain = ik.plain_moment_swarm_costs(*c.args(x))  # compiles or loads
         fast = ik.moment_swarm_costs(*c.args(x), c.n_moments)
-        scale = float(c.problem.current @ c.problem.current)
-        diff = float(np.max(np.abs(fast - plain)) / max(np.max(np.abs(plain)), 1e-13 * scale))
-        out.append(KernelTiming(c, [], [], diff))
+        f32 = ik.moment_swarm_costs(*c.args32(x), c.n_moments)
+        scale = max(np.max(np.abs(plain)), 1e-13 * float(c.problem.current @ c.problem.current))
+        diff = float(np.max(np.abs(fast - plain)) / scale)
+        out.append(KernelTiming(c, [], [], [], diff, float(np.max(np.abs(f32 - plain)) / scale)))
     clocks = []
     _fma_chain(10, 1.0)
     for _ in range(repeats):
         for t, x in zip(out, xs, strict=True):
             clocks.append(measure_clock_ghz())
-            args = t.case.args(x)
-            t0 = time.thread_time()
-            for _ in range(batch):
-                ik.plain_moment_swarm_costs(*args)
-            t.plain_s.append((time.thread_time() - t0) / batch)
-            t0 = time.thread_time()
-            for _ in range(batch):
-                ik.moment_swarm_costs(*args, t.case.n_moments)
-            t.fast_s.append((time.thread_time() - t0) / batch)
+            args, args32, moments = t.case.args(x), t.case.args32(x), t.case.n_moments
+            runs: list[tuple[Callable[..., object], tuple[object, ...], list[float]]] = [
+                (ik.plain_moment_swarm_costs, args, t.plain_s),
+                (ik.moment_swarm_costs, (*args, moments), t.fast_s),
+                (ik.moment_swarm_costs, (*args32, moments), t.f32_s),
+            ]
+            for kernel, kernel_args, times in runs:
+                t0 = time.thread_time()
+                for _ in range(batch):
+                    kernel(*kernel_args)
+                times.append((time.thread_time() - t0) / batch)
     return out, clocks
+
+
+# ---------------------------------------------------------------- float32 against the noise
+
+
+@dataclass
+class Float32Error:
+    """What the float32 path changes in one circuit's estimate, against what the noise does."""
+
+    circuit: str
+    seeds: int
+    #: Spread (std over noise seeds) of the float64 estimate, relative, per parameter.
+    noise_spread: dict[str, float]
+    #: Largest float32-float64 difference of the estimate over the seeds, relative.
+    f32_shift: dict[str, float]
+    #: Largest |cost32 - cost64| at the float64 minimum, in units of the residual
+    #: variance (cost/n): a difference of 1 is what one standard error of the fit costs.
+    cost_error_chi2: float
+    #: Largest cost at the minimum relative to the sum of squared currents: the share
+    #: of the kernel's sums (before i0 and K are projected out) that the fit keeps.
+    residual_share: float
+
+    @property
+    def below_noise(self) -> bool:
+        """Float32 moves the estimate by under a tenth of the noise spread, the cost by 0.1."""
+        worst = max(self.f32_shift[n] / self.noise_spread[n] for n in self.noise_spread)
+        return worst < 0.1 and self.cost_error_chi2 < 0.1
+
+
+def float32_errors(n_samples: int, rate_hz: float, seeds: int, adc_bits: int) -> list[Float32Error]:
+    """Minimise each circuit's cost in float64 and float32 on ``seeds`` noisy windows.
+
+    Every window is a P-12 recording through a ``adc_bits``-bit ADC with 0.2 %
+    sensor noise. Both minimisations start where a float64 swarm ended and run
+    Nelder-Mead to its tolerance floor, so they differ only by the kernel's
+    arithmetic; the spread of the float64 minimum over the seeds is the noise's.
+    """
+    from scipy.optimize import minimize as scipy_minimize
+
+    rows = []
+    for circuit in ("field", "armature"):
+        best64, best32, chi2, share = [], [], [], []
+        for seed in range(seeds):
+            w = p12_window(seed, n_samples=n_samples, sample_rate_hz=rate_hz, adc_bits=adc_bits)
+            if circuit == "field":
+                problem = make_problem(w.vf, w.i_f, w.dt, "hold")
+                box = field_search_range(w.vf, w.i_f, w.dt).log_bounds()
+            else:
+                problem = armature_problem(w.va, w.ia, w.i_f, w.omega, w.dt, intersample="hold")
+                box = armature_search_range(w.va, w.ia, w.i_f, w.omega, w.dt).log_bounds()
+            case = Case(circuit, problem, box, 0.0, 1)
+
+            def cost64(x: np.ndarray, case: Case = case) -> float:
+                return float(ik.moment_swarm_costs(*case.args(x[None, :]), case.n_moments)[0])
+
+            def cost32(x: np.ndarray, case: Case = case) -> float:
+                return float(ik.moment_swarm_costs(*case.args32(x[None, :]), case.n_moments)[0])
+
+            swarm = problem.swarm_cost()
+            start = pso.minimize(swarm, box, n_particles=40, max_iterations=60, rng=seed).x
+            options = {"xatol": 1e-12, "fatol": 0.0, "maxiter": 4000, "maxfev": 8000}
+            x64 = scipy_minimize(cost64, start, method="Nelder-Mead", options=options).x
+            x32 = scipy_minimize(cost32, start, method="Nelder-Mead", options=options).x
+            best64.append(10.0**x64)
+            best32.append(10.0**x32)
+            residual_var = cost64(x64) / problem.current.size
+            chi2.append(abs(cost32(x64) - cost64(x64)) / residual_var)
+            share.append(cost64(x64) / float(problem.current @ problem.current))
+        b64, b32 = np.array(best64), np.array(best32)
+        names = ("Rf", "Lf") if circuit == "field" else ("Ra", "La")
+        mean = b64.mean(axis=0)
+        rows.append(
+            Float32Error(
+                circuit,
+                seeds,
+                {n: float(b64[:, i].std(ddof=1) / mean[i]) for i, n in enumerate(names)},
+                {
+                    n: float(np.max(np.abs(b32[:, i] - b64[:, i])) / mean[i])
+                    for i, n in enumerate(names)
+                },  # fmt: skip
+                float(np.max(chi2)),
+                float(np.max(share)),
+            )
+        )
+    return rows
 
 
 # ---------------------------------------------------------------- assembly
@@ -188,10 +289,10 @@ def packed_fmas() -> dict[str, tuple[int, int, int]]:
     for fn, fit, moments in loops:
         fresh = njit(fn.py_func)  # type: ignore[attr-defined]
         fresh(w, y, mu, mu, 0, n - 1)
-        asm = fresh.inspect_asm(fresh.signatures[0])
+        asm = fresh.inspect_asm(fresh.signatures[0])  # type: ignore[attr-defined]
         expected = ik.FMAS_PER_PARTICLE_SAMPLE[(fit, moments)] * ik.BLOCK_VECTORS[fit]
         found = len(_FMA.findall(asm))
-        out[fn.__name__] = (found, len(_SCALAR_FMA.findall(asm)), expected)  # type: ignore[attr-defined]
+        out[fn.__name__] = (found, len(_SCALAR_FMA.findall(asm)), expected)
     return out
 
 
@@ -270,6 +371,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--swarm-iterations", type=int, default=100)
     parser.add_argument("--swarm-repeats", type=int, default=15)
     parser.add_argument("--skip-pyswarms", action="store_true")
+    parser.add_argument("--f32-seeds", type=int, default=6,
+                        help="noisy windows of the float32 error study")  # fmt: skip
+    parser.add_argument("--adc-bits", type=int, default=12,
+                        help="ADC resolution of the float32 error study's recordings")  # fmt: skip
     parser.add_argument("--quick", action="store_true", help="smoke run: few repeats, short window")
     parser.add_argument("--output", type=Path, default=Path("docs/kernel_speed.md"))
     args = parser.parse_args(argv)
@@ -286,6 +391,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         args.batch = 1
         args.swarm_iterations = min(args.swarm_iterations, 10)
         args.swarm_repeats = 2
+        args.f32_seeds = min(args.f32_seeds, 2)
+    if not 2 <= args.adc_bits <= 31:
+        parser.error(f"--adc-bits must be from 2 to 31, got {args.adc_bits}")
+    if args.f32_seeds < 2:
+        parser.error("--f32-seeds must be at least 2 (the noise spread is a standard deviation)")
     for name in ("samples", "repeats", "batch", "swarm_samples", "swarm_particles",
                  "swarm_iterations", "swarm_repeats"):  # fmt: skip
         if getattr(args, name) < (100 if "samples" in name else 1):
@@ -303,6 +413,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     kernel_rows, clocks = time_kernels(cases, args.repeats, args.batch, rng)
     ghz = float(np.max(clocks))  # the least disturbed measurement
     asm = packed_fmas()
+    f32_rows = float32_errors(args.samples, args.rate, args.f32_seeds, args.adc_bits)
     swarm_case = make_cases(args.swarm_samples, 2000.0, [args.swarm_particles])[0]
     swarm_rows, kernel_call = time_swarms(
         swarm_case, args.swarm_particles, args.swarm_iterations, args.swarm_repeats, args.pyswarms
@@ -350,8 +461,59 @@ def main(argv: Sequence[str] | None = None) -> int:
         "",
         "Max rel. difference: fast against plain kernel, relative to the largest cost (or, for "
         "a fitted K, to 1e-13·Σy²: the sums K's projection subtracts). "
-        "The padding of a swarm to whole vectors of four is counted as waste (24 and 100 are "
-        "whole).",
+        "The padding of a swarm to whole blocks (four particles with K fitted, eight without) "
+        "is counted as waste (24 is whole; 100 is padded to 104 without K fitted).",
+        "",
+        "## Float32 path: the same kernel on float32 samples (eight lanes a vector)",
+        "",
+        "Peak: 16 float32 FMA lanes per cycle, so 16/N particle-samples per cycle.",
+        "",
+        "| case | particles | float64 (µs) | float32 (µs) | speed-up | float32 (p-s/cycle) "
+        "| share of float32 peak | max rel. difference |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in kernel_rows:
+        c = r.case
+        fast_s, f32_s = float(np.min(r.fast_s)), float(np.min(r.f32_s))
+        per_cycle = c.n_particles * args.samples / (f32_s * ghz * 1e9)
+        peak32 = 2 * PEAK_FMA_LANES_PER_CYCLE / c.fmas
+        lines.append(
+            f"| {c.name} | {c.n_particles} | {1e6 * fast_s:.0f} | {1e6 * f32_s:.0f} | "
+            f"{fast_s / f32_s:.2f}× | {per_cycle:.2f} | {100 * per_cycle / peak32:.0f} % | "
+            f"{r.f32_rel_diff:.1e} |"
+        )
+        short.append(
+            f"{c.name:<40} P={c.n_particles:<4} float32 {1e6 * f32_s:7.0f} us "
+            f"({fast_s / f32_s:.2f}x float64), rel. difference {r.f32_rel_diff:.1e}"
+        )
+    lines += [
+        "",
+        f"What float32 changes in the estimate, against the sensor noise: {f32_rows[0].seeds} "
+        f"windows of the P-12 ({args.samples} samples at {args.rate:g} Hz, 0.2 % sensor noise, "
+        f"{args.adc_bits}-bit ADC at 2.5× rated), each minimised in float64 and in float32 "
+        "(Nelder-Mead from where a float64 swarm ended, to its tolerance floor). Noise spread: "
+        "the standard deviation of the float64 estimate over the windows; float32 shift: the "
+        "largest difference between the two estimates of a window; cost error: the largest "
+        "|cost32 − cost64| at the float64 minimum in units of cost/n (1 = what one standard "
+        "error of the fit costs); residual share: the cost at the minimum over Σy², what is "
+        "left of the kernel's sums once the initial current (and K) are projected out.",
+        "",
+        "| circuit | parameter | noise spread | float32 shift | shift / spread "
+        "| cost error (cost/n) | residual share |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for e in f32_rows:
+        for name, spread in e.noise_spread.items():
+            shift = e.f32_shift[name]
+            lines.append(
+                f"| {e.circuit} | {name} | {100 * spread:.3f} % | {100 * shift:.2g} % | "
+                f"{shift / spread:.2g} | {e.cost_error_chi2:.2g} | {e.residual_share:.1e} |"
+            )
+            short.append(
+                f"float32 {name}: shift {100 * shift:.2g} % against noise {100 * spread:.3f} % "
+                f"(cost error {e.cost_error_chi2:.2g} cost/n)"
+            )
+    lines += [
         "",
         "## Assembly: packed FMAs in each inner loop",
         "",
@@ -398,6 +560,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"- Dominant kernel at {n_particles} particles ({dominant.case.name}) at "
             f"≥ {100 * TARGET_SHARE_OF_PEAK:g} % of the FMA peak: {100 * share:.0f} % — "
             f"{'**met**' if share >= TARGET_SHARE_OF_PEAK else '**missed**'}."
+        )
+    for e in f32_rows:
+        verdict = "below the noise: usable" if e.below_noise else "above the noise: not used"
+        worst = max(e.f32_shift[n] / e.noise_spread[n] for n in e.noise_spread)
+        lines.append(
+            f"- Float32 path, {e.circuit}: {verdict} (estimate shifted by up to {worst:.2g}× the "
+            f"noise spread, cost by {e.cost_error_chi2:.2g} cost/n; threshold 0.1 of either)."
         )
     if len(swarm_rows) == 3:
         ratio = float(np.median(swarm_rows[2].times)) / float(np.median(ours.times))

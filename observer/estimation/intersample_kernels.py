@@ -332,10 +332,6 @@ def _swarm_block(fit: bool, moments: int, n_vec: int) -> Callable[..., None]:
         vty = ir.VectorType(fty, lanes)
         intp = context.get_value_type(types.intp)
         i32 = ir.IntType(32)
-        suffix = "f64" if size == 8 else "f32"
-        fma_fn = cgutils.get_or_insert_function(
-            builder.module, ir.FunctionType(vty, [vty, vty, vty]), f"llvm.fma.v{lanes}{suffix}"
-        )
         w, y, mu, mu_emf = (
             context.make_array(t)(context, builder, a)
             for t, a in zip((w_ty, y_ty, mu_ty, emf_ty), args[:4], strict=True)
@@ -346,7 +342,9 @@ def _swarm_block(fit: bool, moments: int, n_vec: int) -> Callable[..., None]:
         splat = ir.Constant(ir.VectorType(i32, lanes), [0] * lanes)
 
         def fma(x, m, c):
-            return builder.call(fma_fn, [x, m, c])
+            # x*m + c, contractible as the rest of the kernels: one FMA where the
+            # core has them (llvm.fma would call libm per lane where it has not).
+            return builder.fadd(builder.fmul(x, m, flags=("contract",)), c, flags=("contract",))
 
         def row(r: int, v: int):
             col = builder.add(j, ir.Constant(intp, v * lanes))
@@ -546,8 +544,12 @@ def moment_swarm_costs(
     current : (n,) array
         Measured winding current (A). Its dtype sets the arithmetic of the
         samples' loop: float64, or float32 (``mu`` and ``mu_emf`` then float32
-        too: twice the lanes, see ``python -m bench.kernel_speed`` for the error
-        it adds); the coefficients and the projections are float64 either way.
+        too; the coefficients and the projections stay float64). float32 runs
+        twice the lanes but is not used: the sums before ``i0`` and ``K`` are
+        projected out are 4e4 to 2e5 times the fit's residual, which float32's
+        rounding over a window's sums does not keep (``python -m
+        bench.kernel_speed`` measures the estimate it shifts: 15-70 times the
+        spread the sensor noise gives).
     starts, ends : (n_segments,) int arrays
         First and last sample of each segment (inclusive; intervals between
         segments are skipped).

@@ -149,7 +149,9 @@ def test_kernel_speed_quick_reports_full_width_loops(tmp_path, capsys):
         ["--quick", "--skip-pyswarms", "--particles", "5", "--output", str(out)]
     )
     assert code == 0
-    rows = _table_rows(out.read_text(encoding="utf-8"))
+    text = out.read_text(encoding="utf-8")
+    kernel_table, float32_tables = text.split("## Float32 path")
+    rows = _table_rows(kernel_table) | _table_rows(float32_tables.split("## Assembly")[1])
     for loop in ("_plain_hold", "_plain_moments", "_fit_hold", "_fit_moments"):
         found, scalar, needed, passes = rows[f"`{loop}`"]
         assert int(found) == int(needed) > 0 and passes == "1", loop
@@ -157,6 +159,11 @@ def test_kernel_speed_quick_reports_full_width_loops(tmp_path, capsys):
     field = rows["field, held voltage"]
     assert field[0] == "5" and field[1] == "5"  # particles, FMAs per particle-sample
     assert float(field[-1]) < 1e-12  # fast against plain
+    # The float32 path: timed per case, and both circuits measured against the noise.
+    f32 = _table_rows(float32_tables.split("## Assembly")[0])
+    assert f32["field, held voltage"][0] == "5" and float(f32["field, held voltage"][-1]) > 0
+    assert "field" in f32 and "armature" in f32
+    assert text.count("- Float32 path, ") == 2
     assert "wrote" in capsys.readouterr().out
 
 
