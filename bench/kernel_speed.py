@@ -18,9 +18,9 @@ machine hits every method alike:
    timed with the others, and what it does to the estimate: windows of a
    12-bit ADC recording minimised in float64 and float32, the difference
    against the spread the sensor noise gives;
-4. **assembly**: each inner loop compiled afresh (the cache cannot be
-   inspected) and its packed (ymm) FMAs counted: one per FMA of a block's
-   sample, and no scalar ones;
+4. **assembly**: each particle block's loop compiled afresh in a one-call
+   wrapper (the cache cannot be inspected) and its packed (ymm) FMAs counted:
+   one per FMA of a block's sample, and no scalar ones;
 5. **swarm**: this project's PSO (``pso.minimize``) against pyswarms'
    ``GlobalBestPSO`` on the very same compiled cost and budget.
 
@@ -273,26 +273,29 @@ _SCALAR_FMA = re.compile(r"\bvf(?:n?m)(?:add|sub)\d{3}sd\b")
 
 
 def packed_fmas() -> dict[str, tuple[int, int, int]]:
-    """Packed (ymm) and scalar FMAs in each inner loop's assembly, and the packed FMAs one
-    sample of a block needs (LLVM unrolls the samples' loop: a whole multiple of them)."""
+    """Packed (ymm) and scalar FMAs in each block's compiled loop, and the packed FMAs one
+    sample of the block needs (one per FMA of each of its vectors)."""
     n = 64
     mu = np.ones((n - 1, 3))
     y = np.ones(n)
     w = np.ones((ik._ROWS, 8))
-    loops: list[tuple[Callable[..., object], bool, int]] = [
-        (ik._plain_hold, False, 1),
-        (ik._plain_moments, False, 3),
-        (ik._fit_hold, True, 1),
-        (ik._fit_moments, True, 3),
+    blocks: list[tuple[str, Callable[..., None], bool, int]] = [
+        ("_plain_hold_block", ik._plain_hold_block, False, 1),
+        ("_plain_moments_block", ik._plain_moments_block, False, 3),
+        ("_fit_hold_block", ik._fit_hold_block, True, 1),
+        ("_fit_moments_block", ik._fit_moments_block, True, 3),
     ]
     out = {}
-    for fn, fit, moments in loops:
-        fresh = njit(fn.py_func)  # type: ignore[attr-defined]
-        fresh(w, y, mu, mu, 0, n - 1)
+    for name, block, fit, moments in blocks:
+
+        def one_block(w, y, mu, mu_emf, block=block):  # type: ignore[no-untyped-def]
+            block(w, y, mu, mu_emf, 0, 0, y.shape[0] - 1)
+
+        fresh = njit(one_block)
+        fresh(w, y, mu, mu)
         asm = fresh.inspect_asm(fresh.signatures[0])  # type: ignore[attr-defined]
         expected = ik.FMAS_PER_PARTICLE_SAMPLE[(fit, moments)] * ik.BLOCK_VECTORS[fit]
-        found = len(_FMA.findall(asm))
-        out[fn.__name__] = (found, len(_SCALAR_FMA.findall(asm)), expected)
+        out[name] = (len(_FMA.findall(asm)), len(_SCALAR_FMA.findall(asm)), expected)
     return out
 
 
@@ -515,9 +518,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
     lines += [
         "",
-        "## Assembly: packed FMAs in each inner loop",
+        "## Assembly: packed FMAs in each block's loop",
         "",
-        "| loop | ymm FMAs found | scalar FMAs found | ymm FMAs of one sample of a block "
+        "| block | ymm FMAs found | scalar FMAs found | ymm FMAs of one sample of a block "
         "| samples per compiled pass |",
         "|---|---|---|---|---|",
     ]

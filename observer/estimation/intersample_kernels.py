@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from fractions import Fraction
 from typing import cast
 
 import numpy as np
@@ -48,6 +49,21 @@ from observer.estimation.kernels import geometric_energy
 _SERIES_X = 1.0
 _SERIES_TERMS = 16
 
+
+def _series(weight: Callable[[int], Fraction]) -> np.ndarray:
+    """The series' coefficients ``(-1)^n/n! * weight(n)``, exact until rounded to double."""
+    return np.array(
+        [float(Fraction((-1) ** n, math.factorial(n)) * weight(n)) for n in range(_SERIES_TERMS)]
+    )
+
+
+#: w_j = sum_n (-x)^n/n! * int_0^1 s^n P_j(1 - s) ds (s = 1 - u), whose integrals
+#: are 1/(n+1), -n/((n+1)(n+2)) and n(n-1)/((n+1)(n+2)(n+3)): polynomials in x,
+#: evaluated by Horner's rule (no divisions: half the time of summing the terms).
+_W0 = _series(lambda n: Fraction(1, n + 1))
+_W1 = _series(lambda n: Fraction(-n, (n + 1) * (n + 2)))
+_W2 = _series(lambda n: Fraction(n * (n - 1), (n + 1) * (n + 2) * (n + 3)))
+
 #: Free responses are floored (see :data:`observer.estimation.kernels._G_FLOOR`).
 _G_FLOOR = 1e-200
 _A_FLOOR = 1e-100
@@ -63,24 +79,21 @@ EMF_HELD = 2
 """Hold ``K`` at a given value."""
 
 
-@njit(nogil=True, cache=True)
+@njit(nogil=True, cache=True, fastmath={"contract"})
 def moment_coefficients(
     resistance: float, inductance: float, dt: float
 ) -> tuple[float, float, float, float]:
     """``(a, c_0, c_1, c_2)`` of the exact update for period ``dt`` (see the module notes)."""
     x = resistance * dt / inductance
     if x < _SERIES_X:
-        # w_j = sum_n (-x)^n/n! * int_0^1 s^n P_j(1 - s) ds (s = 1 - u), whose
-        # integrals are 1/(n+1), -n/((n+1)(n+2)) and n(n-1)/((n+1)(n+2)(n+3)).
-        w0 = 0.0
-        w1 = 0.0
-        w2 = 0.0
-        term = 1.0  # (-x)^n / n!
-        for n in range(_SERIES_TERMS):
-            w0 += term / (n + 1.0)
-            w1 -= term * n / ((n + 1.0) * (n + 2.0))
-            w2 += term * n * (n - 1.0) / ((n + 1.0) * (n + 2.0) * (n + 3.0))
-            term *= -x / (n + 1.0)
+        last = _SERIES_TERMS - 1
+        w0 = _W0[last]
+        w1 = _W1[last]
+        w2 = _W2[last]
+        for n in range(last - 1, -1, -1):
+            w0 = w0 * x + _W0[n]
+            w1 = w1 * x + _W1[n]
+            w2 = w2 * x + _W2[n]
         a = math.exp(-x)
     else:
         om = -math.expm1(-x)
@@ -444,51 +457,24 @@ def _block_width(x: np.ndarray, fit: bool) -> int:
 
 
 @njit(nogil=True, cache=True)
-def _fit_hold(
-    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
-) -> None:
-    """The intervals ``st .. en-1`` of a segment, held input, ``K`` fitted, block by block."""
-    step = _block_width(w, True)
+def _run_blocks(
+    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int,
+    fit: bool, moments: int,
+) -> None:  # fmt: skip
+    """The intervals ``st .. en-1`` of a segment, tile by tile, every block of ``w`` in each."""
+    step = _block_width(y, fit)
     for k0 in range(st, en, _TILE):
         k1 = min(k0 + _TILE, en)
         for j in range(0, w.shape[1], step):
-            _fit_hold_block(w, y, mu, mu_emf, j, k0, k1)
-
-
-@njit(nogil=True, cache=True)
-def _fit_moments(
-    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
-) -> None:
-    """:func:`_fit_hold` with three moments per interval."""
-    step = _block_width(w, True)
-    for k0 in range(st, en, _TILE):
-        k1 = min(k0 + _TILE, en)
-        for j in range(0, w.shape[1], step):
-            _fit_moments_block(w, y, mu, mu_emf, j, k0, k1)
-
-
-@njit(nogil=True, cache=True)
-def _plain_hold(
-    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
-) -> None:
-    """The intervals ``st .. en-1`` of a segment, held input, no fitted ``K``."""
-    step = _block_width(w, False)
-    for k0 in range(st, en, _TILE):
-        k1 = min(k0 + _TILE, en)
-        for j in range(0, w.shape[1], step):
-            _plain_hold_block(w, y, mu, mu_emf, j, k0, k1)
-
-
-@njit(nogil=True, cache=True)
-def _plain_moments(
-    w: np.ndarray, y: np.ndarray, mu: np.ndarray, mu_emf: np.ndarray, st: int, en: int
-) -> None:
-    """:func:`_plain_hold` with three moments per interval."""
-    step = _block_width(w, False)
-    for k0 in range(st, en, _TILE):
-        k1 = min(k0 + _TILE, en)
-        for j in range(0, w.shape[1], step):
-            _plain_moments_block(w, y, mu, mu_emf, j, k0, k1)
+            if fit:
+                if moments == 1:
+                    _fit_hold_block(w, y, mu, mu_emf, j, k0, k1)
+                else:
+                    _fit_moments_block(w, y, mu, mu_emf, j, k0, k1)
+            elif moments == 1:
+                _plain_hold_block(w, y, mu, mu_emf, j, k0, k1)
+            else:
+                _plain_moments_block(w, y, mu, mu_emf, j, k0, k1)
 
 
 @njit(nogil=True, cache=True, fastmath={"contract"})
@@ -619,15 +605,7 @@ def moment_swarm_costs(
             w[_SDE, j] = 0.0
             w[_SEE, j] = 0.0
             w[_SEG, j] = 0.0
-        if fit_k:
-            if n_moments == 1:
-                _fit_hold(w, y, u, e, st, en)
-            else:
-                _fit_moments(w, y, u, e, st, en)
-        elif n_moments == 1:
-            _plain_hold(w, y, u, e, st, en)
-        else:
-            _plain_moments(w, y, u, e, st, en)
+        _run_blocks(w, y, u, e, st, en, fit_k, n_moments)
         _last_sample(w, y[en], fit_k)
         m_seg = en - st + 1
         for j in range(width):

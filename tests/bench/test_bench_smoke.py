@@ -153,7 +153,7 @@ def test_kernel_speed_quick_reports_full_width_loops(tmp_path, capsys):
     kernel_table, float32_tables = text.split("## Float32 path")
     rows = _table_rows(kernel_table) | _table_rows(float32_tables.split("## Assembly")[1])
     for loop in ("_plain_hold", "_plain_moments", "_fit_hold", "_fit_moments"):
-        found, scalar, needed, passes = rows[f"`{loop}`"]
+        found, scalar, needed, passes = rows[f"`{loop}_block`"]
         assert int(found) == int(needed) > 0 and passes == "1", loop
         assert scalar == "0", loop
     field = rows["field, held voltage"]
