@@ -28,6 +28,12 @@ Three findings come from the front end alone, whatever the motor does:
     The winding's front ends are not configured, and a mismatch of the voltage
     and current channels' filters would move its inductance by more than
     :data:`FRONT_END_SHARE` (the estimate's ``front_end_std``).
+``current_filtered_apart``
+    The voltage was sampled without a filter (clean jumps) and the current
+    through one: the current's bend after every jump rings out over the
+    current filter's response
+    (:func:`~observer.estimation.intersample.current_settling`), samples the
+    estimator then leaves out.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from observer.diagnosis.results import ChainFinding
+from observer.estimation.intersample import current_settling, find_switching, settle_current
 
 #: Line content in the top eighth-band below Nyquist at least this share of the one below
 #: it: the spectrum does not fall towards Nyquist (a filter of order n at fs/4 gives about
@@ -69,6 +76,11 @@ SKEW_ADVICE = (
 FRONT_END_ADVICE = (
     "configure the {ch} and {cur} channels' front ends in [chain] (filter kind, order and "
     "cutoff of each): the estimator then models them exactly"
+)
+CURRENT_FILTER_ADVICE = (
+    "give the {ch} channel the {cur} channel's anti-aliasing filter (which also keeps the "
+    "converter's jumps from folding into its samples), or sample faster, and configure both in "
+    "[chain.{ch}] and [chain.{cur}]"
 )
 ALIAS_ADVICE = (
     "sample faster (at least 5 kHz behind a 6-pulse bridge), or lower the voltage channels' "
@@ -240,4 +252,28 @@ def front_end_finding(
         f"fs/4), {name} would be off by {100 * share:.1f} %: the relative gain at the "
         "converter's ripple scales the ripple current, and the samples alone cannot tell",
         FRONT_END_ADVICE.format(ch=voltage, cur=current),
+    )
+
+
+def current_filter_finding(
+    voltage: str, current: str, v: np.ndarray, i: np.ndarray
+) -> ChainFinding | None:
+    """``current_filtered_apart`` if ``i`` rings out after ``v``'s clean jumps."""
+    sw = find_switching(v)
+    if not sw.switched:
+        return None
+    settle = current_settling(i, v, sw)
+    if settle == 0:
+        return None
+    before = sw.transition_mask
+    after = settle_current(i, v, sw).transition_mask
+    share = float(np.count_nonzero(after & ~before)) / max(before.shape[0], 1)
+    return ChainFinding(
+        voltage,
+        "current_filtered_apart",
+        f"measurement chain: {voltage} was sampled without an anti-aliasing filter (a clean jump "
+        f"at every firing) and {current} through one: the current's bend after each jump rings "
+        f"out over {settle} samples, which the estimator leaves out ({100 * share:.0f} % of the "
+        "samples); the two channels do not see the converter alike",
+        CURRENT_FILTER_ADVICE.format(ch=voltage, cur=current),
     )

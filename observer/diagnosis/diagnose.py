@@ -54,6 +54,7 @@ from observer.diagnosis import kernels as dk
 from observer.diagnosis.chain import (
     VoltageSpectrum,
     alias_finding,
+    current_filter_finding,
     front_end_finding,
     no_filter_finding,
     skew_finding,
@@ -794,6 +795,12 @@ def front_end_findings(
             skew_finding(voltage, CURRENT_CHANNEL[circuit], shift, std, rec.dt),
             front_end_finding(
                 voltage, CURRENT_CHANNEL[circuit], est.front_end_std, est.inductance_h, name
+            ),
+            current_filter_finding(
+                voltage,
+                CURRENT_CHANNEL[circuit],
+                kernel_array(rec[voltage]),
+                kernel_array(rec[CURRENT_CHANNEL[circuit]]),
             ),
         ):
             if found is not None:

@@ -29,7 +29,7 @@ NO_FILTER = REALISTIC.replace(chain=MeasurementChain.uniform(ChannelChain(bits=1
 #: Chain findings that are allowed beside a ``none`` on a healthy converter-fed motor.
 CHAIN_KINDS = {
     "content_near_nyquist", "jumps_between_samples", "no_anti_aliasing", "channel_skew",
-    "front_ends_unknown",
+    "front_ends_unknown", "current_filtered_apart",
 }  # fmt: skip
 
 
@@ -97,6 +97,26 @@ def test_a_missing_anti_aliasing_filter_is_a_chain_finding_not_a_motor_effect():
     assert diag.verdict == NONE, diag.description
     finding = next(c for c in diag.chain if c.kind == "no_anti_aliasing")
     assert "anti-aliasing filter" in finding.advice
+    # the unfiltered current beside it rings out no more than the voltage
+    assert "current_filtered_apart" not in kinds
+
+
+def test_an_unfiltered_voltage_beside_a_filtered_current_is_a_chain_finding():
+    """At 5 kHz (at 2 kHz the field's residual on such a chain is still located as
+    structure the library does not explain: `unexplained`, an open false alarm)."""
+    from observer.config import parse_filter
+    from observer.simulation.chain import apply_per_channel
+
+    bare = {ch: parse_filter("none") for ch in ("va", "vf")}
+    drive = REALISTIC.replace(chain=apply_per_channel(REALISTIC.chain, bare))
+    rec = simulate(
+        P12, duration_s=6.0, sample_rate_hz=5000.0, seed=1, drive=drive, drive_name="realistic"
+    )
+    diag = diagnose(rec)
+    assert diag.verdict == NONE, diag.description
+    finding = next(c for c in diag.chain if c.kind == "current_filtered_apart")
+    assert finding.channel == "va"
+    assert "ia" in finding.description and "anti-aliasing filter" in finding.advice
 
 
 def test_a_load_dependent_speed_error_is_unexplained_not_armature_reaction():
