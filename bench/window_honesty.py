@@ -56,6 +56,11 @@ def _drive(name: str):  # type: ignore[no-untyped-def]
         for ch in ("va", "vf"):
             chain = chain.with_channel(ch, filter="rc", order=1)
         return drive_spec("thyristor").replace(chain=chain)
+    if name == "bare-voltages":
+        chain = MeasurementChain.uniform(REALISTIC_CHANNEL)
+        for ch in ("va", "vf"):
+            chain = chain.with_channel(ch, filter="none")
+        return drive_spec("thyristor").replace(chain=chain)
     raise SystemExit(f"unknown drive {name!r}")
 
 
@@ -129,8 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--motors", default="p12,industrial-440v", help="motors (observer MOTORS)")
     parser.add_argument("--rates", default="2000,5000,10000", help="sample rates (Hz)")
     parser.add_argument(
-        "--drives", default="realistic,no-filter,chopper,rc1-voltages",
-        help="drives: realistic, no-filter, chopper, rc1-voltages",
+        "--drives", default="realistic,no-filter,chopper,rc1-voltages,bare-voltages",
+        help="drives: realistic, no-filter, chopper, rc1-voltages, bare-voltages",
     )  # fmt: skip
     parser.add_argument("--seeds", type=int, default=3, help="recordings per case")
     parser.add_argument("--duration", type=float, default=30.0, help="recording length (s)")
