@@ -15,7 +15,7 @@ import numpy as np
 
 from observer.estimation.frontend import FrontEnd
 from observer.estimation.intersample import choose_model
-from observer.estimation.problem import WindingProblem, make_problem
+from observer.estimation.problem import WindingProblem, coverage_note, make_problem
 from observer.estimation.ranges import (
     SearchRange,
     armature_search_range,
@@ -149,6 +149,7 @@ def estimate_armature(
     spec = specification_stage(problem, fit, bounds) if polish else None
     std = std_stage(problem, fit, eiv, spec)
     point = eiv.point
+    note = coverage_note(problem, "armature")
     return CircuitEstimate(
         circuit="armature",
         resistance_ohm=point.resistance_ohm,
@@ -167,4 +168,6 @@ def estimate_armature(
         shift_std=std.get("shift", 0.0),
         coverage=problem.segments.covered / n,
         front_end_std=std.get("front_end_L", 0.0),
+        describes_window=not note,
+        note=note,
     )

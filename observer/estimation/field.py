@@ -14,7 +14,7 @@ import numpy as np
 
 from observer.estimation.frontend import FrontEnd
 from observer.estimation.intersample import choose_model
-from observer.estimation.problem import make_problem
+from observer.estimation.problem import coverage_note, make_problem
 from observer.estimation.ranges import SearchRange, check_signals, field_search_range, kernel_array
 from observer.estimation.result import CircuitEstimate
 from observer.estimation.stages import (
@@ -109,6 +109,7 @@ def estimate_field(
     spec = specification_stage(problem, fit, bounds) if polish else None
     std = std_stage(problem, fit, eiv, spec)
     point = eiv.point
+    note = coverage_note(problem, "field")
     return CircuitEstimate(
         circuit="field",
         resistance_ohm=point.resistance_ohm,
@@ -127,4 +128,6 @@ def estimate_field(
         shift_std=std.get("shift", 0.0),
         coverage=problem.segments.covered / n,
         front_end_std=std.get("front_end_L", 0.0),
+        describes_window=not note,
+        note=note,
     )
