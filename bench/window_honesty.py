@@ -59,7 +59,7 @@ def _drive(name: str):  # type: ignore[no-untyped-def]
     if name == "bare-voltages":
         chain = MeasurementChain.uniform(REALISTIC_CHANNEL)
         for ch in ("va", "vf"):
-            chain = chain.with_channel(ch, filter="none")
+            chain = chain.with_channel(ch, filter="none", order=0)
         return drive_spec("thyristor").replace(chain=chain)
     raise SystemExit(f"unknown drive {name!r}")
 
