@@ -600,7 +600,19 @@ class SlidingWindowObserver:
             self._check_field_window(tracked["L"].value, tracked["R"].value)
         if est is not None:
             self._check_front_ends(circuit, est)
+            self._check_described(circuit, est)
         return out
+
+    def _check_described(self, circuit: str, est: CircuitEstimate) -> None:
+        """Say once per circuit why its windows are held when the model cannot describe them."""
+        key = f"not_described_{circuit}"
+        if est.describes_window or key in self.warnings:
+            return
+        self.warnings.add(key)
+        log.warning(
+            "%s held: the model does not describe this window (%s)",
+            circuit, est.note or "no reason given",
+        )  # fmt: skip
 
     def _check_front_ends(self, circuit: str, est: CircuitEstimate) -> None:
         """Say once why L is held where the channels' unknown front ends alone hold it."""

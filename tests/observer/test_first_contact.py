@@ -580,6 +580,22 @@ def test_replay_without_a_chain_says_once_why_la_is_held(tmp_path):
     assert said not in res.stderr
 
 
+def test_replay_says_once_why_a_window_the_model_cannot_describe_is_held(tmp_path):
+    """An unfiltered armature voltage beside a filtered current at 2 kHz: after every firing
+    the current settles over more samples than come before the next one. The armature is
+    held, and the log says why once, with what to do."""
+    rec = tmp_path / "r.mcap"
+    chain = "butter2@fs/4,va=none,vf=none"
+    res = here("simulate", str(rec), "--duration", "2", "--rate", "2000", "--aa-filter", chain)
+    assert res.returncode == 0, res.stderr
+    res = here("replay", str(rec), "--no-progress", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    said = "armature held: the model does not describe this window"
+    lines = [line for line in res.stderr.splitlines() if said in line]
+    assert len(lines) == 1, res.stderr[-2000:]
+    assert "filter the voltage channel like the current one" in lines[0]
+
+
 def test_decimated_converter_voltages_are_means_not_held_values(tmp_path):
     """``decimate = 4`` at 10 kHz on a converter recording: each new period's voltage is the
     mean of four filtered samples of a rippling bridge, not a value held over the period.
