@@ -102,13 +102,16 @@ def run_case(case: Case, duration_s: float = 30.0) -> dict[str, np.ndarray]:
         est = np.array([f.resistance_ohm, f.inductance_h, a.resistance_ohm, a.inductance_h,
                         a.emf_constant_h])  # fmt: skip
         std = np.array([f.std["R"], f.std["L"], a.std["R"], a.std["L"], a.std["K"]])
-        rows.append((est, std))
+        described = np.array([f.describes_window] * 2 + [a.describes_window] * 3)
+        rows.append((est, std, described))
     est = np.array([r[0] for r in rows])
     std = np.array([r[1] for r in rows])
+    described = np.array([r[2] for r in rows])
     return {
         "err": est / truth - 1.0,
         "z": (est - truth) / std,
-        "ok": std / np.abs(est) <= limit,
+        # what the daemon publishes: a window its model describes, within the quality limits
+        "ok": (std / np.abs(est) <= limit) & described,
     }
 
 

@@ -380,10 +380,12 @@ def make_problem(
             switching = Switching(sw.jumps, sw.clean_share, sw.noise_v, widened)
     if model == "switched":
         sw = switching if isinstance(switching, Switching) else find_switching(voltage)
-        # A fitted relative delay (up to a sample behind a current's filter) takes the
-        # voltage of a segment's first interval from across the jump before it: the field,
-        # whose bends are too small to show a filter, read Rf +1.6 % at 2 std at 5 kHz.
-        switching = settle_current(current, voltage, sw, at_least=1 if fit_shift else 0)
+        # A relative delay (up to a sample behind a current's filter), fitted or learned,
+        # takes the voltage of a segment's first intervals from across the jump before it:
+        # the field, whose bends are too small to show a filter, read Rf +1.6 % at 2 std at
+        # 5 kHz.
+        delay = max(1 if fit_shift else 0, math.ceil(abs(shift) - 1e-6))
+        switching = settle_current(current, voltage, sw, at_least=delay)
     alias_v: tuple[float, ...] = ()
     if model == "smooth":
         # Jumps between samples that a smooth reconstruction spreads over their intervals
