@@ -292,6 +292,10 @@ class WindingProblem:
         return lower, upper
 
 
+#: A learned relative delay up to this many sample periods leaves a switched segment's
+#: first interval in (see :func:`make_problem`).
+DELAY_SLACK = 0.2
+
 #: A window with less than this share of its samples inside segments (a ``switched``
 #: voltage whose jumps, and the current's settling after them, leave little between) does
 #: not describe its circuit: an unfiltered 6-pulse voltage beside a current filtered at fs/4
@@ -383,8 +387,10 @@ def make_problem(
         # A relative delay (up to a sample behind a current's filter), fitted or learned,
         # takes the voltage of a segment's first intervals from across the jump before it:
         # the field, whose bends are too small to show a filter, read Rf +1.6 % at 2 std at
-        # 5 kHz.
-        delay = max(1 if fit_shift else 0, math.ceil(abs(shift) - 1e-6))
+        # 5 kHz. A fitted one is not known yet: one sample. A learned one of a fifth of a
+        # sample or less (channels filtered alike) takes too little to pay for a sample
+        # of every segment at 2 kHz.
+        delay = max(1 if fit_shift else 0, math.ceil(abs(shift) - DELAY_SLACK))
         switching = settle_current(current, voltage, sw, at_least=delay)
     alias_v: tuple[float, ...] = ()
     if model == "smooth":
