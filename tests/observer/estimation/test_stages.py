@@ -301,6 +301,33 @@ def _mismatched_drive():
     return realistic.replace(chain=apply_per_channel(realistic.chain, changes))
 
 
+def _bare_voltage_drive():
+    """The realistic drive with unfiltered voltages beside its Butterworth currents (fs/4)."""
+    from observer.config import parse_filter
+    from observer.simulation.chain import apply_per_channel
+    from observer.simulation.converter import PRESETS
+
+    realistic = PRESETS["realistic"]
+    assert realistic is not None
+    bare = {ch: parse_filter("none") for ch in ("va", "vf")}
+    return realistic.replace(chain=apply_per_channel(realistic.chain, bare))
+
+
+def _armature_window(drive, fs):
+    """4 s of a P-12 on ``drive`` at ``fs``; its signals and the armature estimate of 1-4 s."""
+    from observer.estimation.motor import MOTORS
+    from observer.simulation.simulate import simulate
+
+    rec = simulate(MOTORS["p12"], duration_s=4.0, sample_rate_hz=fs, seed=1, drive=drive)
+    s = rec.signals
+    window = slice(int(1 * fs), int(4 * fs))
+    arm = estimate_armature(
+        s["va"][window], s["ia"][window], s["if"][window], s["omega"][window], 1 / fs,
+        rng=0, n_particles=40, max_iterations=40,
+    )  # fmt: skip
+    return s, arm
+
+
 def test_an_untold_front_end_mismatch_is_in_the_inductances_std():
     """The same mismatched drive at 5 kHz, the chain not told. The RC passes the 300 Hz
     ripple ~2.7 % weaker than the Butterworth beside it, so the ripple current reads 2.7 %
@@ -339,30 +366,13 @@ def test_an_unfiltered_voltage_beside_a_filtered_current_settles_before_its_segm
     samples, which the segments after the jumps took as the winding's response: La +8.6 %
     at 5.7 std (10 s) before. The bend's length is measured from the window's own jumps
     and those samples are left out."""
-    from observer.config import parse_filter
-    from observer.estimation import estimate_armature
     from observer.estimation.motor import MOTORS
-    from observer.simulation.chain import apply_per_channel
-    from observer.simulation.converter import PRESETS
-    from observer.simulation.simulate import simulate
 
-    realistic = PRESETS["realistic"]
-    assert realistic is not None
-    bare = {ch: parse_filter("none") for ch in ("va", "vf")}
-    drive = realistic.replace(chain=apply_per_channel(realistic.chain, bare))
-    motor = MOTORS["p12"]
-    fs = 5000.0
-    rec = simulate(motor, duration_s=4.0, sample_rate_hz=fs, seed=1, drive=drive)
-    s = rec.signals
-    window = slice(int(1 * fs), int(4 * fs))
-    arm = estimate_armature(
-        s["va"][window], s["ia"][window], s["if"][window], s["omega"][window], 1 / fs,
-        rng=0, n_particles=40, max_iterations=40,
-    )  # fmt: skip
+    _, arm = _armature_window(_bare_voltage_drive(), 5000.0)
     assert arm.intersample == "switched"
-    error = arm.inductance_h - motor.armature_inductance_h
+    error = arm.inductance_h - MOTORS["p12"].armature_inductance_h
     assert abs(error) <= 2.5 * arm.std["L"], (error, arm.std)
-    assert abs(error) <= 0.02 * motor.armature_inductance_h, (error, arm.std)
+    assert abs(error) <= 0.02 * MOTORS["p12"].armature_inductance_h, (error, arm.std)
 
 
 def test_where_the_current_never_settles_between_jumps_the_window_is_not_described():
@@ -371,28 +381,12 @@ def test_where_the_current_never_settles_between_jumps_the_window_is_not_describ
     The estimate now says its model does not describe the window, and why; the data
     check, whose static fit once took the lagging ripple for an inverted current
     (Ra = -0.78 ohm: "is the sign of ia inverted?"), lets the recording through."""
-    from observer.config import parse_filter
-    from observer.estimation import estimate_armature
-    from observer.estimation.motor import MOTORS
     from observer.estimation.plausibility import check_data
-    from observer.simulation.chain import apply_per_channel
-    from observer.simulation.converter import PRESETS
-    from observer.simulation.simulate import simulate
 
-    realistic = PRESETS["realistic"]
-    assert realistic is not None
-    bare = {ch: parse_filter("none") for ch in ("va", "vf")}
-    drive = realistic.replace(chain=apply_per_channel(realistic.chain, bare))
     fs = 2000.0
-    rec = simulate(MOTORS["p12"], duration_s=4.0, sample_rate_hz=fs, seed=1, drive=drive)
-    s = rec.signals
+    s, arm = _armature_window(_bare_voltage_drive(), fs)
     findings = check_data(dict(s), 1 / fs, ("field", "armature"))
     assert not [f for f in findings if f.severity == "error"], findings
-    window = slice(int(1 * fs), int(4 * fs))
-    arm = estimate_armature(
-        s["va"][window], s["ia"][window], s["if"][window], s["omega"][window], 1 / fs,
-        rng=0, n_particles=40, max_iterations=40,
-    )  # fmt: skip
     assert not arm.describes_window
     assert "settled" in arm.note and arm.coverage < 0.2
 
@@ -402,21 +396,11 @@ def test_a_converters_ripple_marks_a_measured_voltage_where_its_jumps_are_hidden
     samples), and 'hold', which counts the voltage exact, fitted best: Ra +0.85 % at 0.11 %
     std on the mismatched drive. Its 300 Hz ripple says it is the converter's measured
     terminals: read smooth, with an std that covers Ra."""
-    from observer.estimation import estimate_armature
     from observer.estimation.motor import MOTORS
-    from observer.simulation.simulate import simulate
 
-    motor = MOTORS["p12"]
-    fs = 2000.0
-    rec = simulate(motor, duration_s=4.0, sample_rate_hz=fs, seed=1, drive=_mismatched_drive())
-    s = rec.signals
-    window = slice(int(1 * fs), int(4 * fs))
-    arm = estimate_armature(
-        s["va"][window], s["ia"][window], s["if"][window], s["omega"][window], 1 / fs,
-        rng=0, n_particles=40, max_iterations=40,
-    )  # fmt: skip
+    _, arm = _armature_window(_mismatched_drive(), 2000.0)
     assert arm.intersample == "smooth"
-    error = arm.resistance_ohm - motor.armature_resistance_ohm
+    error = arm.resistance_ohm - MOTORS["p12"].armature_resistance_ohm
     assert abs(error) <= 2.5 * arm.std["R"], (arm.resistance_ohm, arm.std["R"])
 
 
