@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from observer.diagnosis.results import ChainFinding
-from observer.estimation.intersample import current_settling, find_switching, settle_current
+from observer.estimation.intersample import current_settling, find_switching
 
 #: Line content in the top eighth-band below Nyquist at least this share of the one below
 #: it: the spectrum does not fall towards Nyquist (a filter of order n at fs/4 gives about
@@ -265,9 +265,7 @@ def current_filter_finding(
     settle = current_settling(i, v, sw)
     if settle == 0:
         return None
-    before = sw.transition_mask
-    after = settle_current(i, v, sw).transition_mask
-    share = float(np.count_nonzero(after & ~before)) / max(before.shape[0], 1)
+    share = sw.widened(settle).transition_share - sw.transition_share
     return ChainFinding(
         voltage,
         "current_filtered_apart",

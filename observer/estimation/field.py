@@ -109,7 +109,8 @@ def estimate_field(
     spec = specification_stage(problem, fit, bounds) if polish else None
     std = std_stage(problem, fit, eiv, spec)
     point = eiv.point
-    note = coverage_note(problem, "field")
+    coverage = problem.segments.covered / n
+    note = coverage_note(coverage, "field")
     return CircuitEstimate(
         circuit="field",
         resistance_ohm=point.resistance_ohm,
@@ -126,7 +127,7 @@ def estimate_field(
         intersample=problem.inp.model,
         shift_samples=point.shift,
         shift_std=std.get("shift", 0.0),
-        coverage=problem.segments.covered / n,
+        coverage=coverage,
         front_end_std=std.get("front_end_L", 0.0),
         describes_window=not note,
         note=note,

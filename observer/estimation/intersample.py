@@ -150,6 +150,17 @@ class Switching:
         t = self.transition_mask
         return float(np.count_nonzero(t)) / max(t.shape[0], 1)
 
+    def widened(self, m: int) -> Switching:
+        """These transitions, each widened forward by ``m`` intervals (the samples still
+        settling after them)."""
+        if m <= 0:
+            return self
+        t = self.transition_mask
+        out = t.copy()
+        for k in range(1, m + 1):
+            out[k:] |= t[:-k]
+        return Switching(self.jumps, self.clean_share, self.noise_v, out)
+
 
 def _robust_std(x: np.ndarray) -> float:
     x = x[np.isfinite(x)]
@@ -336,14 +347,7 @@ def geometric_end(c0: float, c1: float, scale: float) -> int:
 def settle_current(i: np.ndarray, v: np.ndarray, sw: Switching, at_least: int = 0) -> Switching:
     """``sw`` with each transition widened forward by :func:`current_settling` intervals,
     and by ``at_least``."""
-    m = max(current_settling(i, v, sw), at_least)
-    if m == 0:
-        return sw
-    t = sw.transition_mask
-    widened = t.copy()
-    for k in range(1, m + 1):
-        widened[k:] |= t[:-k]
-    return Switching(sw.jumps, sw.clean_share, sw.noise_v, widened)
+    return sw.widened(max(current_settling(i, v, sw), at_least))
 
 
 #: Images of the sample rate summed for the aliasing factor (|H| of a real filter has fallen

@@ -303,10 +303,9 @@ DELAY_SLACK = 0.2
 MIN_COVERAGE = 0.2
 
 
-def coverage_note(problem: WindingProblem, circuit: str) -> str:
-    """Why ``problem`` cannot describe the ``circuit``'s window ("" when it can)."""
-    n = problem.voltage.shape[0]
-    share = problem.segments.covered / max(n, 1)
+def coverage_note(share: float, circuit: str) -> str:
+    """Why a window with ``share`` of its samples in segments cannot describe the
+    ``circuit`` ("" when it can)."""
     if share >= MIN_COVERAGE:
         return ""
     return (
@@ -377,11 +376,8 @@ def make_problem(
         # current as the segment assumes (equal front ends relate exactly).
         sw = switching if isinstance(switching, Switching) else find_switching(voltage)
         settle = edge_samples(front_ends[0], front_ends[0], dt) - 2
-        if settle > 0 and sw.transitions is not None:
-            widened = sw.transitions.copy()
-            for k in np.flatnonzero(sw.transitions):
-                widened[k : k + settle + 1] = True
-            switching = Switching(sw.jumps, sw.clean_share, sw.noise_v, widened)
+        if sw.transitions is not None:
+            switching = sw.widened(settle)
     if model == "switched":
         sw = switching if isinstance(switching, Switching) else find_switching(voltage)
         # A relative delay (up to a sample behind a current's filter), fitted or learned,
