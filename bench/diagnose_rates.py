@@ -60,6 +60,7 @@ CASES: dict[str, tuple[float, float, str]] = {
 
 def run_case(job: dict[str, Any]) -> dict[str, Any]:
     from observer.diagnosis.diagnose import diagnose
+    from observer.diagnosis.effects import thermal_rise
     from observer.estimation.motor import MOTORS
     from observer.simulation.simulate import simulate
 
@@ -83,7 +84,7 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
                 # k and tau trade off along a ridge; their product over the record does not.
                 k, tau = phys["thermal_rise_per_w"], phys["thermal_time_constant_s"]
                 ctx = diag.context
-                truth = k * ctx.mean_loss_w * (1 - math.exp(-ctx.duration_s / tau))
+                truth = thermal_rise(k, tau, ctx.mean_loss_w, ctx.duration_s)
             else:
                 truth = phys[param]
             out["fitted"] = {**finding.params, **finding.magnitude}[param]
@@ -131,6 +132,7 @@ def converter_drive(variant: str) -> Any:
 
 def run_converter_case(job: dict[str, Any]) -> dict[str, Any]:
     from observer.diagnosis.diagnose import diagnose
+    from observer.diagnosis.effects import thermal_rise
     from observer.estimation.motor import MOTORS
     from observer.simulation.simulate import simulate
 
@@ -155,8 +157,8 @@ def run_converter_case(job: dict[str, Any]) -> dict[str, Any]:
             phys = rec.metadata["effects"]["physical"]
             tau = phys["thermal_time_constant_s"]
             ctx = diag.context
-            out["rise_at_end"] = (
-                phys["thermal_rise_per_w"] * ctx.mean_loss_w * (1 - math.exp(-ctx.duration_s / tau))
+            out["rise_at_end"] = thermal_rise(
+                phys["thermal_rise_per_w"], tau, ctx.mean_loss_w, ctx.duration_s
             )
     elif kind == "clean":
         out["right"] = diag.verdict == "none"

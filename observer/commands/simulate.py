@@ -32,7 +32,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--effect", default=None, metavar="NAME[=MAG][,NAME...]",
         help="physics the plain model leaves out: field_saturation (flux deficit at rated "
-        "field current, default 0.08), thermal_drift (resistance rise at rated loss, 0.3), "
+        "field current, default 0.08), thermal_drift (resistance rise at rated currents, 0.3), "
         "brush_drop (V, 1.0), armature_reaction (flux loss at rated current, 0.05), "
         "eddy_currents (coupling k^2, 0.2), sensor_offset (ia offset / rated current, 0.01), "
         "sampling_skew (current delay in sample periods, 0.5); outside the diagnosis library "

@@ -45,6 +45,34 @@ class DataContext:
     field_time_constant_s: float
 
 
+def thermal_rise(k: float, tau: float, loss_w: float, t: float) -> float:
+    """Resistance rise after ``t`` s of a constant cold copper loss, from a cold start.
+
+    With the hot loss ``loss_w*(1 + theta)`` heating the windings,
+    ``tau*dtheta/dt = k*loss_w - (1 - k*loss_w)*theta``.
+
+    Parameters
+    ----------
+    k : float
+        Rise per watt (1/W).
+    tau : float
+        Thermal time constant (s).
+    loss_w : float
+        Copper loss at the cold resistances (W).
+    t : float
+        Time (s).
+
+    Returns
+    -------
+    float
+        ``theta(t)``; for ``k*loss_w = 1`` (the edge of runaway) the linear limit.
+    """
+    g = k * loss_w
+    if abs(1.0 - g) < 1e-9:
+        return g * t / tau
+    return g / (1.0 - g) * (1.0 - math.exp(-(1.0 - g) * t / tau))
+
+
 @dataclass(frozen=True)
 class Parameter:
     """One free parameter of an effect.
@@ -167,7 +195,8 @@ class ThermalDrift(Effect):
         "recording"
     )
     equation = (
-        "R(t) = R0*(1 + theta), tau*dtheta/dt = k*(Ra0*ia^2 + Rf0*if^2) - theta, theta(0) = 0"
+        "R(t) = R0*(1 + theta), tau*dtheta/dt = k*(Ra0*ia^2 + Rf0*if^2)*(1 + theta) - theta, "
+        "theta(0) = 0"
     )
     signals = ("vf", "if", "va", "ia", "omega")
     circuits = ("field", "armature")
@@ -186,8 +215,10 @@ class ThermalDrift(Effect):
         )
 
     def magnitude(self, values: dict[str, float], ctx: DataContext) -> dict[str, float]:
-        k, tau = values["thermal_rise_per_w"], values["thermal_time_constant_s"]
-        rise = k * ctx.mean_loss_w * (1 - math.exp(-ctx.duration_s / tau))
+        rise = thermal_rise(
+            values["thermal_rise_per_w"], values["thermal_time_constant_s"], ctx.mean_loss_w,
+            ctx.duration_s,
+        )  # fmt: skip
         return {"resistance_rise_at_end": rise}
 
 

@@ -9,9 +9,10 @@ and return the residual. Linear parameters are projected out as in
 :mod:`observer.estimation.kernels`: the armature's ``K`` (shared by all segments) and its
 initial current (one per segment).
 
-Model (per sample period ``dt``)::
+Model (per sample period ``dt``; ``P`` the copper loss at the baseline (cold)
+resistances, so ``P*(1+theta)`` is the loss the hot windings dissipate)::
 
-    theta:  theta[k+1] = theta[k] + (1 - exp(-dt/tau_th)) * (k_th*P[k] - theta[k])
+    theta:  theta[k+1] = theta[k] + (1 - exp(-dt/tau_th)) * (k_th*P[k]*(1+theta[k]) - theta[k])
     field:  Lf/(1+c|if|)^2 * dif/dt = vf - Rf*(1+theta)*if  (+ eddy path: k2, tau_e)
     arm.:   La*dia/dt = va - Ra*(1+theta)*ia - Vb*tanh(ia/iw)
                         - K*g(if)*(1 - beta*|ia|)*omega,   g(if) = if/(1+c|if|)
@@ -74,7 +75,11 @@ def _coefficients(r: float, ell: float, dt: float, held: bool) -> tuple[float, f
 
 @njit(nogil=True, cache=True)
 def thermal_state(p: np.ndarray, loss: np.ndarray, dt: float, out: np.ndarray) -> None:
-    """Relative resistance rise ``theta`` at every sample, from a cold start."""
+    """Relative resistance rise ``theta`` at every sample, from a cold start.
+
+    ``loss`` is the copper loss at the cold resistances (W); the windings heat by
+    the loss at the present ones, ``loss*(1 + theta)``.
+    """
     kth = p[I_KTH]
     n = loss.shape[0]
     if kth == 0.0:
@@ -85,7 +90,7 @@ def thermal_state(p: np.ndarray, loss: np.ndarray, dt: float, out: np.ndarray) -
     th = 0.0
     for k in range(n):
         out[k] = th
-        th += alpha * (kth * loss[k] - th)
+        th += alpha * (kth * loss[k] * (1.0 + th) - th)
 
 
 @njit(nogil=True, cache=True)

@@ -251,7 +251,7 @@ def _deriv(
         dia = (src - ra * ia - drop - e_back) / (la + ls)
         va_term = src - ls * dia
     dw = (k_emf * flux * ia - friction * w - tl) / inertia
-    loss = ra0 * ia * ia + rf0 * i_f * i_f
+    loss = ra * ia * ia + rf * i_f * i_f  # copper loss at the hot resistances
     dth = (kth * loss - theta) / tth if kth > 0.0 else 0.0
     dy[S_IF] = dif
     dy[S_J] = dj

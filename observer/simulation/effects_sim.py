@@ -12,8 +12,13 @@ each departure is known. This module adds them to the drive simulator:
     field current, ``c*In/(1 + c*In)``.
 ``thermal_drift``
     Both winding resistances are ``R0*(1 + theta)``; ``theta`` obeys
-    ``tau*dtheta/dt = k*P - theta`` with the copper loss ``P = Ra0*ia^2 + Rf0*if^2``
-    (W). Magnitude: the steady rise ``k*P_rated`` at rated losses.
+    ``tau*dtheta/dt = k*P - theta`` with the copper loss the windings dissipate at
+    their present (hot) resistances, ``P = (Ra0*ia^2 + Rf0*if^2)*(1 + theta)`` (W).
+    For a constant cold loss ``P0 = Ra0*ia^2 + Rf0*if^2`` that is
+    ``tau*dtheta/dt = k*P0 - (1 - k*P0)*theta``: the rise settles at
+    ``k*P0/(1 - k*P0)`` with time constant ``tau/(1 - k*P0)`` (and runs away for
+    ``k*P0 >= 1``). Magnitude: the steady rise ``m`` at rated currents, so
+    ``k = m/((1 + m)*P0_rated)``.
 ``brush_drop``
     A contact voltage ``Vb*tanh(ia/iw)`` (V) opposes the armature current:
     ``va = Ra*ia + La*dia/dt + Vb*sign(ia) + K*if*omega``.
@@ -104,7 +109,7 @@ DEFAULT_MAGNITUDES: dict[str, float] = {
 #: What the one number given per effect means.
 MAGNITUDE_UNITS: dict[str, str] = {
     "field_saturation": "flux deficit at rated field current (fraction)",
-    "thermal_drift": "steady resistance rise at rated copper loss (fraction)",
+    "thermal_drift": "steady resistance rise at rated currents (fraction)",
     "brush_drop": "brush contact drop (V)",
     "armature_reaction": "flux loss at rated armature current (fraction)",
     "eddy_currents": "coupling k^2 of the eddy path to the field winding (fraction)",
@@ -130,7 +135,8 @@ class PlantEffects:
     saturation_per_a : float
         ``c`` of ``g(if) = if/(1 + c|if|)`` (1/A).
     thermal_rise_per_w, thermal_time_constant_s : float
-        ``k`` (1/W) and ``tau`` (s) of ``tau*dtheta/dt = k*P - theta``.
+        ``k`` (1/W) and ``tau`` (s) of ``tau*dtheta/dt = k*P - theta``, ``P`` the
+        copper loss at the hot resistances.
     brush_drop_v, brush_width_a : float
         Contact drop ``Vb*tanh(ia/iw)``: ``Vb`` (V) and ``iw`` (A).
     reaction_per_a : float
@@ -238,7 +244,8 @@ def plant_effects(
             motor.armature_resistance_ohm * motor.rated_armature_current_a**2
             + motor.field_resistance_ohm * motor.rated_field_current_a**2
         )
-        kw["thermal_rise_per_w"] = m["thermal_drift"] / rated_loss_w
+        # The loss grows with the rise it drives: k*P0*(1 + m) = m at rated currents.
+        kw["thermal_rise_per_w"] = m["thermal_drift"] / ((1.0 + m["thermal_drift"]) * rated_loss_w)
     if "brush_drop" in m:
         kw["brush_drop_v"] = m["brush_drop"]
     if "armature_reaction" in m:
@@ -372,7 +379,7 @@ def _derivatives(
     drop = vb * np.tanh(ia / iw) if vb > 0.0 else 0.0
     dia = (va - ra * ia - drop - k * flux * omega) / la
     domega = (k * flux * ia - friction * omega - tl) / inertia
-    loss = ra0 * ia * ia + rf0 * i_f * i_f
+    loss = ra * ia * ia + rf * i_f * i_f  # copper loss at the hot resistances
     dtheta = (kth * loss - theta) / tth if kth > 0.0 else 0.0
     return dif, dj, dia, domega, dtheta
 

@@ -9,13 +9,11 @@ Clean recordings of both motors over several seeds must come back ``none``.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
 from observer.diagnosis.diagnose import diagnose
-from observer.diagnosis.effects import LIBRARY, Combination
+from observer.diagnosis.effects import LIBRARY, Combination, thermal_rise
 from observer.diagnosis.noise_floor import noise_floor
 from observer.diagnosis.results import NONE, UNEXPLAINED
 from observer.estimation.motor import P12, TRACTION_60V
@@ -75,7 +73,7 @@ def _true_magnitude(rec: Recording, name: str, diag) -> float:
     if name == "resistance_rise_at_end":
         ctx = diag.context
         k, tau = phys["thermal_rise_per_w"], phys["thermal_time_constant_s"]
-        return k * ctx.mean_loss_w * (1 - math.exp(-ctx.duration_s / tau))
+        return thermal_rise(k, tau, ctx.mean_loss_w, ctx.duration_s)
     return float(phys[name])
 
 

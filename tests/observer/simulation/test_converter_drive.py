@@ -389,3 +389,19 @@ def test_changes_and_heating_on_a_converter_drive():
     true = true_parameters(rec.metadata, np.array([0.2, 1.5]))
     assert true["Ra"][1] > 1.05 * P12.armature_resistance_ohm > true["Ra"][0]
     assert rec.metadata["thermal"]["theta"][-1] == pytest.approx(truth.theta[-200], rel=0.05)
+
+
+def test_a_converter_fed_winding_heats_by_the_loss_at_its_hot_resistance():
+    rec, truth = simulate_converter(
+        P12, _drive("ideal", "ideal"), duration_s=3.0, sample_rate_hz=10_000.0, noise=0.0,
+        seed=2, effects={"thermal_drift": 0.3}, thermal_time_constant_s=2.0, want_truth=True,
+    )  # fmt: skip
+    assert truth is not None
+    k = rec.metadata["effects"]["physical"]["thermal_rise_per_w"]
+    cold = P12.armature_resistance_ohm * truth.ia**2 + P12.field_resistance_ohm * truth.i_f**2
+    theta = np.zeros(cold.size)
+    for n in range(1, cold.size):
+        loss = 0.5 * (cold[n - 1] + cold[n]) * (1.0 + theta[n - 1])
+        theta[n] = theta[n - 1] + rec.dt * (k * loss - theta[n - 1]) / 2.0
+    assert truth.theta[-1] > 0.02
+    np.testing.assert_allclose(truth.theta[1000:], theta[1000:], rtol=2e-3)

@@ -131,6 +131,38 @@ def test_thermal_truth_is_recorded_with_its_time_constant():
     assert r_late == pytest.approx(185.0 * (1 + theta), rel=2e-3)
 
 
+def _rise_from_currents(ia, i_f, dt, k, tau, *, hot):
+    """theta per sample by tau*dtheta/dt = k*P - theta, P at the hot or the cold resistances."""
+    cold = P12.armature_resistance_ohm * ia**2 + P12.field_resistance_ohm * i_f**2
+    theta = np.zeros(ia.size)
+    for n in range(1, ia.size):
+        th = theta[n - 1]
+        loss = 0.5 * (cold[n - 1] + cold[n]) * ((1.0 + th) if hot else 1.0)
+        theta[n] = th + dt * (k * loss - th) / tau
+    return theta
+
+
+def test_the_windings_heat_by_the_loss_at_their_hot_resistances():
+    fx = {"thermal_drift": 0.3}
+    rec = simulate(P12, duration_s=6.0, seed=2, noise=0.0, effects=fx, thermal_time_constant_s=5.0)
+    k = rec.metadata["effects"]["physical"]["thermal_rise_per_w"]
+    at = np.searchsorted(rec.t, rec.metadata["thermal"]["t_s"])
+    true = np.asarray(rec.metadata["thermal"]["theta"])
+    hot = _rise_from_currents(rec["ia"], rec["if"], rec.dt, k, 5.0, hot=True)[at]
+    cold = _rise_from_currents(rec["ia"], rec["if"], rec.dt, k, 5.0, hot=False)[at]
+    late = rec.t[at] > 1.0
+    assert true[-1] > 0.02
+    np.testing.assert_allclose(true[late], hot[late], rtol=2e-3)
+    # The cold loss would fall short by about the rise itself.
+    assert np.max(np.abs(cold[late] / true[late] - 1.0)) > 0.01
+    # The magnitude is the steady rise at rated currents, the loss growing with it.
+    rated = (
+        P12.armature_resistance_ohm * P12.rated_armature_current_a**2
+        + P12.field_resistance_ohm * P12.rated_field_current_a**2
+    )
+    assert k * rated * 1.3 == pytest.approx(0.3)
+
+
 def test_effects_outside_the_library_need_no_converter_and_say_so():
     from observer.simulation.converter import ConverterSpec, DriveSpec
     from observer.simulation.converter_drive import simulate_converter
