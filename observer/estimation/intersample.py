@@ -385,7 +385,14 @@ def alias_factor(
 
 
 def alias_bias_bound(v: np.ndarray, transitions: np.ndarray, factor: float) -> float:
-    """Bound (V) on the error of the window's mean voltage that sampled jumps leave.
+    """Bound (V) on the error of the window's mean voltage that sampled jumps leave
+    (:func:`alias_bias`'s bound alone)."""
+    return alias_bias(v, transitions, factor)[0]
+
+
+def alias_bias(v: np.ndarray, transitions: np.ndarray, factor: float) -> tuple[float, bool]:
+    """Bound (V) on the error of the window's mean voltage that sampled jumps leave, and
+    whether the jumps are locked to the samples.
 
     ``transitions`` marks the intervals of ``v`` in a transition
     (:attr:`Switching.transition_mask`). Each run of them (a jump and its settling) carries the
@@ -395,11 +402,17 @@ def alias_bias_bound(v: np.ndarray, transitions: np.ndarray, factor: float) -> f
     a whole number of sample periods, as a drive synchronised to its mains
     has: the runs start a constant number of samples apart) err alike and add
     up; jumps that wander over the interval err with random signs and add in
-    quadrature. A voltage without transitions: 0.
+    quadrature. A voltage without transitions: ``(0.0, False)``.
+
+    Locked jumps err alike in every window of the same firing angle too: the
+    bound is then of a bias the windows share, which averaging them does not
+    shrink (on a single-phase field bridge at 2 kHz on 50 Hz mains the window
+    fits of ``Rf`` are +0.26 % off, the samples' mean of ``vf`` as much above the
+    voltage's; wandering jumps, at 60 Hz, leave +0.001 %).
     """
     n = v.shape[0]
     if n < 2 or not np.any(transitions):
-        return 0.0
+        return 0.0, False
     # A settling jump can leave a sample or two on its smooth curve by chance: runs so close
     # belong to one jump.
     t = transitions.copy()
@@ -428,7 +441,7 @@ def alias_bias_bound(v: np.ndarray, transitions: np.ndarray, factor: float) -> f
                 abs(slope - round(slope)) <= LOCKED_TOLERANCE and np.median(residual) <= 1.5
             )
     total = float(np.sum(np.abs(jumps))) if locked else float(np.sqrt(np.sum(jumps**2)))
-    return factor * total / n
+    return factor * total / n, locked
 
 
 #: Mains frequencies a line-commutated converter's ripple is locked to (Hz).
@@ -737,6 +750,7 @@ def emf_moments(i_f: np.ndarray, omega: np.ndarray, segments: Segments) -> np.nd
 
 
 __all__ = [
+    "alias_bias",
     "alias_bias_bound",
     "alias_factor",
     "MODELS",

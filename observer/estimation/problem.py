@@ -25,7 +25,7 @@ from observer.estimation.intersample import (
     InputModel,
     Segments,
     Switching,
-    alias_bias_bound,
+    alias_bias,
     alias_factor,
     build_input,
     find_switching,
@@ -65,6 +65,9 @@ class WindingProblem:
         piece's mean voltage that jumps seen through the front end leave in the samples (V;
         :func:`~observer.estimation.intersample.alias_bias_bound`). It changes where the
         converter's firing angle does, so each piece errs on its own.
+    alias_locked : tuple of bool
+        Per piece: its jumps are locked to the samples, so its alias error is a bias every
+        window at that firing angle shares (:func:`~observer.estimation.intersample.alias_bias`).
     untold_front_end : bool
         A filtered voltage (``smooth``) whose channels' front ends are not configured:
         their relative response is unknown
@@ -83,6 +86,7 @@ class WindingProblem:
     lag: float = 0.0
     alias_v: tuple[float, ...] = ()
     untold_front_end: bool = False
+    alias_locked: tuple[bool, ...] = ()
     _mu_emf: np.ndarray | None = field(default=None, repr=False)
     _mu_cache: dict[tuple[float, float], np.ndarray] = field(default_factory=dict, repr=False)
 
@@ -140,6 +144,7 @@ class WindingProblem:
         return WindingProblem(
             self.voltage, self.current, self.dt, inp, self.emf, self.emf_constant,
             self.fit_shift, self.fit_lag, lag_, self.alias_v, self.untold_front_end,
+            self.alias_locked,
         )  # fmt: skip
 
     # ------------------------------------------------------------- the swarm
@@ -389,6 +394,7 @@ def make_problem(
         delay = max(1 if fit_shift else 0, math.ceil(abs(shift) - DELAY_SLACK))
         switching = settle_current(current, voltage, sw, at_least=delay)
     alias_v: tuple[float, ...] = ()
+    alias_locked: tuple[bool, ...] = ()
     if model == "smooth":
         # Jumps between samples that a smooth reconstruction spreads over their intervals
         # (a switched model leaves them out of its segments; a held voltage has none).
@@ -399,13 +405,15 @@ def make_problem(
             1.0 / dt,
         )
         t = sw.transition_mask
-        alias_v = tuple(
-            alias_bias_bound(raw_voltage[p.start : p.stop + 1], t[p], factor)
+        bounds = [
+            alias_bias(raw_voltage[p.start : p.stop + 1], t[p], factor)
             for p in alias_pieces(t.shape[0])
-        )
+        ]
+        alias_v = tuple(b for b, _ in bounds)
+        alias_locked = tuple(locked for _, locked in bounds)
     inp = build_input(voltage, model, shift=shift, switching=switching, valid=valid)  # type: ignore[arg-type]
     problem = WindingProblem(
         voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag, alias_v,
-        untold_front_end=front_ends is None and model == "smooth",
+        untold_front_end=front_ends is None and model == "smooth", alias_locked=alias_locked,
     )  # fmt: skip
     return problem.with_shift(shift, lag) if lag else problem

@@ -56,6 +56,11 @@ class CircuitEstimate:
         The part of ``std["L"]`` (H) an unknown mismatch of the voltage and current
         channels' front ends leaves (0 where they are configured; see
         :func:`~observer.estimation.frontend.unknown_mismatch`).
+    shared_std : dict
+        The part of ``std`` per parameter (same units) that every window at the same
+        operating point shares: a bias that averaging windows does not shrink (the
+        voltage sensor's offset, the alias of converter jumps locked to the samples;
+        :func:`~observer.estimation.stages.std_stage`). Empty: none known.
     """
 
     circuit: str
@@ -77,6 +82,7 @@ class CircuitEstimate:
     shift_std: float = 0.0
     coverage: float = 1.0
     front_end_std: float = 0.0
+    shared_std: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def time_constant_s(self) -> float:
@@ -88,6 +94,14 @@ class CircuitEstimate:
         if value is None or value == 0:
             return math.inf
         return self.std[name] / abs(value)
+
+    def relative_shared_std(self, name: str) -> float:
+        """``shared_std[name] / |value|`` (0 where none is known)."""
+        value = {"R": self.resistance_ohm, "L": self.inductance_h, "K": self.emf_constant_h}[name]
+        shared = self.shared_std.get(name, 0.0)
+        if value is None or value == 0 or shared == 0:
+            return 0.0
+        return shared / abs(value)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary: ``R, L, (K), rms, std, rel_std, ...``."""
@@ -107,6 +121,8 @@ class CircuitEstimate:
         out["shift_std"] = self.shift_std
         out["coverage"] = self.coverage
         out["front_end_std"] = self.front_end_std
+        if self.shared_std:
+            out["shared_std"] = dict(self.shared_std)
         if self.note:
             out["note"] = self.note
         out["iterations"] = self.pso.n_iterations

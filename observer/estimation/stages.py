@@ -515,6 +515,12 @@ def std_stage(
     commonest mismatch of the channels would cause
     (:func:`~observer.estimation.frontend.unknown_mismatch`): its gain at the
     ripple moves ``L`` whole, its phase in transients ``R`` and ``K``.
+
+    For a measured voltage the result also holds ``shared_R``, ``shared_L``
+    (and ``shared_K``): the part of the std that every window at the same
+    operating point shares, a bias averaging windows does not shrink -- the
+    sensor's offset, and the alias of jumps locked to the samples (the
+    ``steady`` term of the pieces whose jumps are locked).
     """
     theta = fit.theta
     tau_samples = math.exp(theta[1] - theta[0]) / problem.dt
@@ -522,6 +528,7 @@ def std_stage(
     measured = problem.inp.model != "hold"
     offset = np.zeros(3)
     mismatch = np.zeros(3)
+    shared = np.zeros(3)
     if measured:
         # The residual's change per error of the voltage (one solve for every column): the
         # sensor's offset, the alias of each piece, and the untold front ends' mismatch.
@@ -549,6 +556,7 @@ def std_stage(
         # The parameters' moves per volt of each error (one solve for every column).
         per_volt = np.abs(np.linalg.lstsq(fit.jacobian, columns, rcond=None)[0][:k])
         offset[:k] = per_volt[:, 0] * OFFSET_SHARE * float(np.mean(np.abs(problem.voltage)))
+        shared[:k] = offset[:k]
         if pieces:
             # The same error over the whole window (a steady bridge) or one per piece
             # (the firing angle moves): whichever moves the parameter more.
@@ -556,9 +564,14 @@ def std_stage(
             volts = np.array([v for _, v in pieces])
             each = np.sqrt(np.sum((per_volt[:, 1 : 1 + len(pieces)] * volts) ** 2, axis=1))
             offset[:k] = np.hypot(offset[:k], np.maximum(steady, each))
+            pairs = zip(problem.alias_v, problem.alias_locked, strict=True)
+            locked_v = [v if lock else 0.0 for v, lock in pairs]
+            shared_alias = per_volt[:, 0] * float(np.sqrt(np.mean(np.square(locked_v))))
+            shared[:k] = np.hypot(shared[:k], shared_alias)
         if problem.untold_front_end:
             mismatch[:k] = per_volt[:, -1]
         offset[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
+        shared[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
         mismatch[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
     std = crlb_std(jac, fit.point.residual, tau_samples)
     point = eiv.point
@@ -591,6 +604,9 @@ def std_stage(
         i += int(problem.fits_k)
     if problem.untold_front_end:
         out["front_end_L"] = float(mismatch[1])
+    if measured:
+        for j, name in enumerate(("R", "L", "K")[: 2 + int(problem.fits_k)]):
+            out[f"shared_{name}"] = float(shared[j])
     if problem.fit_shift:
         out["shift"] = float(std[i])
         i += 1

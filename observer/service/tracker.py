@@ -21,6 +21,13 @@ samples, so ``overlap = window_s / hop_s`` windows carry the information of one
 fit stands for the middle of the samples that inform it, not the window's end:
 models with a rate say so in their observation row.
 
+Part of a window's std may be a bias every window at the same operating point
+shares (:attr:`Evidence.shared_rel_std`: the alias of a converter's jumps locked
+to the samples, a voltage sensor's offset). Weighing windows cannot average it
+down, so it enters the published std whole: ``std^2 = P + shared^2``, ``P``
+the state's variance, ``shared`` that of the latest window taken in. The
+state, the innovations and the change test are as without it.
+
 Windows that are not evidence -- the estimator says its model does not
 describe them, the parameter's relative std is not finite or zero, or above its
 ``[observer.quality]`` limit -- only advance the state (``held``). An
@@ -69,10 +76,14 @@ class Evidence:
         The fit (SI units), > 0.
     rel_std : float
         Its one-sigma relative uncertainty (the estimator's ``std / value``).
+    shared_rel_std : float
+        The part of ``rel_std`` every window at the same operating point shares (a
+        bias; the estimator's ``shared_std / value``); 0: none known.
     """
 
     value: float
     rel_std: float
+    shared_rel_std: float = 0.0
 
 
 @dataclass
@@ -390,6 +401,8 @@ class _Track:
     model: Model
     cusum: Cusum
     state: Gaussian | None = None
+    # Relative variance of the bias the latest window taken in shares with its neighbours.
+    shared_var: float = 0.0
     # (window end ns, state before that window's update) of the latest windows: a
     # change is measured from the state before its CUSUM run began.
     history: deque[tuple[int, Gaussian]] = field(default_factory=lambda: deque(maxlen=64))
@@ -481,8 +494,10 @@ class MotorTracker:
 
     def rel_std(self, name: str) -> float | None:
         """Tracked one-sigma relative uncertainty of ``name``."""
-        state = self.tracks[name].state
-        return None if state is None else math.sqrt(max(float(state.P[0, 0]), 0.0))
+        track = self.tracks[name]
+        if track.state is None:
+            return None
+        return math.sqrt(max(float(track.state.P[0, 0]), 0.0) + track.shared_var)
 
     def in_transition(self, circuit: str) -> bool:
         """Whether a change of ``circuit`` is being confirmed (its parameters frozen)."""
@@ -581,9 +596,14 @@ class MotorTracker:
             level = float(k_state.x[0])
             self._k_highest = level if self._k_highest is None else max(self._k_highest, level)
         for name, track in self.tracks.items():
+            ev = evidence.get(name)
+            if status[name] == "ok" and ev is not None:
+                shared = ev.shared_rel_std if math.isfinite(ev.shared_rel_std) else 0.0
+                track.shared_var = min(max(shared, 0.0), ev.rel_std) ** 2
             st = track.state
             value = None if st is None else math.exp(float(st.x[0]))
-            std = None if st is None or value is None else value * math.sqrt(float(st.P[0, 0]))
+            rel = self.rel_std(name)
+            std = None if value is None or rel is None else value * rel
             rate = None
             if st is not None and name[0] == "R":
                 rate = 60.0 * track.model.rate(st, loss)

@@ -537,7 +537,8 @@ class SlidingWindowObserver:
             value = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}[p]
             rel = est.relative_std(p)
             ok = value is not None and math.isfinite(value) and math.isfinite(rel)
-            evidence[name] = Evidence(float(value), float(rel)) if ok else None  # type: ignore[arg-type]
+            shared = est.relative_shared_std(p)
+            evidence[name] = Evidence(float(value), float(rel), shared) if ok else None  # type: ignore[arg-type]
         return evidence
 
     def _copper_loss(
@@ -580,6 +581,7 @@ class SlidingWindowObserver:
         raw = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}
         out["raw"] = {p: _finite_or_none(raw[p]) for p in names}
         out["rel_std"] = {p: _finite_or_none(est.relative_std(p)) for p in names}
+        out["shared_rel_std"] = {p: _finite_or_none(est.relative_shared_std(p)) for p in names}
         out["rms"] = _finite_or_none(est.rms_a)
         out["describes_window"] = est.describes_window
         if est.note:

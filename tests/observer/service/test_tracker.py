@@ -309,3 +309,27 @@ def test_a_field_fit_stands_after_its_first_time_constant():
 def test_winding_temperature_from_resistance():
     t, s = winding_temperature(3.5 * 1.0393, 0.001, 3.5, 0.00393, 20.0)
     assert t == pytest.approx(30.0) and s == pytest.approx(3.5 * 1.0393 * 0.001 / (3.5 * 0.00393))
+
+
+@pytest.mark.parametrize("told", [False, True])
+def test_a_bias_every_window_shares_is_not_averaged_down(told):
+    """Windows whose fits share a bias (a converter's jumps locked to the samples) beside
+    their own noise: weighing them follows the bias, and the published std covers it only
+    when the windows say which part of their std is shared."""
+    fits = Fits(3)
+    shared = bias = 0.004  # a one-sigma bias, as the windows of a field bridge show
+    trk = _tracker()
+    z = []
+    for i in range(400):
+        ev = fits(TRUTH)["Rf"]
+        biased = Evidence(ev.value * (1 + bias), math.hypot(ev.rel_std, shared),
+                          shared if told else 0.0)  # fmt: skip
+        p = trk.step((i + 1) * HOP_NS, {"Rf": biased}).parameters["Rf"]
+        if i > 100:
+            z.append((p.value - TRUTH["Rf"]) / p.std)
+    rms = float(np.sqrt(np.mean(np.square(z))))
+    if told:
+        assert 0.5 < rms <= 1.0
+        assert trk.rel_std("Rf") >= shared
+    else:
+        assert rms > 1.5
