@@ -256,10 +256,11 @@ def front_end_finding(
 
 
 def current_filter_finding(
-    voltage: str, current: str, v: np.ndarray, i: np.ndarray
+    voltage: str, current: str, v: np.ndarray, i: np.ndarray, dt: float | None = None
 ) -> ChainFinding | None:
-    """``current_filtered_apart`` if ``i`` rings out after ``v``'s clean jumps."""
-    sw = find_switching(v)
+    """``current_filtered_apart`` if ``i`` rings out after ``v``'s clean jumps (``dt``: the
+    sample period, see :func:`~observer.estimation.intersample.find_switching`)."""
+    sw = find_switching(v, dt)
     if not sw.switched:
         return None
     settle = current_settling(i, v, sw)

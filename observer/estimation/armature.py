@@ -54,7 +54,7 @@ def armature_problem(
     i_f = kernel_array(i_f)
     omega = kernel_array(omega)
     check_signals(va=va, ia=ia, i_f=i_f, omega=omega)
-    model, switching = choose_model(va, intersample)
+    model, switching = choose_model(va, intersample, dt)
     return make_problem(
         va, ia, dt, model, switching=switching, emf=i_f * omega,
         emf_constant=emf_constant, fit_shift=fit_shift, shift=shift,

@@ -88,7 +88,7 @@ def estimate_field(
     n = check_signals(vf=vf, i_f=i_f)
     rng_ = np.random.default_rng(rng)
     bounds = search_range if search_range is not None else field_search_range(vf, i_f, dt)
-    model, switching = choose_model(vf, intersample)
+    model, switching = choose_model(vf, intersample, dt)
     problem = make_problem(
         vf, i_f, dt, model, switching=switching, fit_shift=fit_shift, shift=shift,
         front_ends=front_ends,

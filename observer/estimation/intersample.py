@@ -53,6 +53,9 @@ from observer.estimation import intersample_kernels as ik
 
 MODELS = ("hold", "smooth", "switched", "averaged")
 
+#: Mains frequencies a line-commutated converter's segments and ripple are locked to (Hz).
+MAINS_HZ = (50.0, 60.0)
+
 #: A jump must exceed this many robust standard deviations of the smooth parts'
 #: extrapolation error on both sides of its interval.
 JUMP_SIGMAS = 8.0
@@ -184,43 +187,93 @@ def _smooth_scale(miss_left: np.ndarray, miss_right: np.ndarray) -> float:
     return float(np.median(both)) / 0.375
 
 
-def find_switching(v: np.ndarray) -> Switching:
-    """Locate the intervals of ``v`` that contain a jump (see :class:`Switching`).
+def _predictors(v: np.ndarray, dt: float | None) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """One-sided extrapolation misses of each sample, from the left and from the right.
 
-    A quadratic through three samples on one side of an interval predicts the
-    sample on the other side; a jump makes both one-sided predictions across
-    its interval miss by far more than the smooth parts ever do.
+    Two predictors of a smooth voltage, each with the scale of its misses on
+    smooth stretches (:func:`_smooth_scale`): the quadratic through the three
+    samples on one side (any slowly varying voltage: a chopper's DC link, a
+    filtered converter, a back-EMF), and, when the sample period ``dt`` is
+    known, the recurrence ``v[k+1] = 2 cos(w dt) v[k] - v[k-1]`` that every
+    sine of frequency ``w`` obeys exactly: a line-commutated bridge's voltage
+    between its commutations is a segment of the mains' sine (of
+    :data:`MAINS_HZ`, the one it fits better). Near the crest of a 6-pulse
+    bridge's output sampled at 2 kHz (6.7 samples per pulse) the quadratic
+    misses smooth samples by up to a fifth of a firing's jump, and
+    extrapolated across a jump its curvature can take up most of it (a 56 V
+    firing missed by 15 V from one side, under its threshold); the sine misses
+    them by the noise alone. The sine misses a back-EMF (discontinuous
+    conduction) by ``E (w dt)**2``, the quadratic does not.
     """
     n = v.shape[0]
-    jumps = np.zeros(max(n - 1, 0), dtype=bool)
-    if n < 8:
-        return Switching(jumps, 0.0, 0.0)
     # left[k] predicts v[k] from v[k-3], v[k-2], v[k-1]; right[k] from v[k+1..k+3].
     left = np.full(n, np.nan)
     left[3:] = 3.0 * v[2:-1] - 3.0 * v[1:-2] + v[:-3]
     right = np.full(n, np.nan)
     right[:-3] = 3.0 * v[1:-2] - 3.0 * v[2:-1] + v[3:]
-    miss_left = v - left
-    miss_right = v - right
-    scale = _smooth_scale(miss_left, miss_right)
-    if not scale > 0:
-        scale = _robust_std(np.diff(v)) or 1e-12
-    threshold = JUMP_SIGMAS * scale
-    across_left = np.abs(miss_left[1:]) > threshold  # interval k: v[k+1] missed from the left
-    across_right = np.abs(miss_right[:-1]) > threshold  # interval k: v[k] missed from the right
-    jumps = across_left & across_right
-    # Intervals at the window's edges cannot be judged from both sides.
-    jumps[:3] = False
-    jumps[-3:] = False
-    # A clean jump leaves both its samples on their own smooth curves: the one
-    # before it is predicted from the left, the one after it from the right. A
-    # filtered jump settles over several samples (or rings), so its
-    # neighbours are still in transition.
-    on_left = np.zeros_like(jumps)
-    on_right = np.zeros_like(jumps)
-    on_left[:] = np.abs(np.nan_to_num(miss_left[:-1], nan=np.inf)) <= SETTLED_SIGMAS * scale
-    on_right[:] = np.abs(np.nan_to_num(miss_right[1:], nan=np.inf)) <= SETTLED_SIGMAS * scale
-    clean = jumps & on_left & on_right
+    out = [(v - left, v - right, _smooth_scale(v - left, v - right))]
+    if dt is not None and dt > 0:
+        sines = []
+        for mains in MAINS_HZ:
+            c2 = 2.0 * math.cos(2.0 * math.pi * mains * dt)
+            left = np.full(n, np.nan)
+            left[2:] = c2 * v[1:-1] - v[:-2]
+            right = np.full(n, np.nan)
+            right[:-2] = c2 * v[1:-1] - v[2:]
+            sines.append((v - left, v - right, _smooth_scale(v - left, v - right)))
+        out.append(min(sines, key=lambda m: m[2]))
+    return out
+
+
+def find_switching(v: np.ndarray, dt: float | None = None) -> Switching:
+    """Locate the intervals of ``v`` that contain a jump (see :class:`Switching`).
+
+    A smooth predictor from the samples on one side of an interval predicts the
+    sample on the other side; a jump makes both one-sided predictions across
+    its interval miss by far more than the smooth parts ever do. Each of
+    :func:`_predictors` (``dt``, the sample period, adds the mains sine's) is
+    judged against its own scale, and an interval either flags holds a jump:
+    each sees jumps the other's curvature hides.
+    """
+    n = v.shape[0]
+    jumps = np.zeros(max(n - 1, 0), dtype=bool)
+    if n < 8:
+        return Switching(jumps, 0.0, 0.0)
+    clean = np.zeros_like(jumps)
+    settled = np.zeros(n, dtype=bool)
+    scales = []
+    for sine, (miss_left, miss_right, scale) in enumerate(_predictors(v, dt)):
+        if not scale > 0:
+            scale = _robust_std(np.diff(v)) or 1e-12
+        scales.append(scale)
+        threshold = JUMP_SIGMAS * scale
+        across_left = np.abs(miss_left[1:]) > threshold  # interval k: v[k+1] missed from the left
+        across_right = np.abs(miss_right[:-1]) > threshold  # interval k: v[k] missed from the right
+        flags = across_left & across_right
+        if sine:
+            # The sine's miss of v[j] from v[j-2], v[j-1] is its miss of v[j-2] from the right:
+            # a jump in interval j-2 or j-1 shows in it. Fired just after the crossing of
+            # the two line voltages (a small firing angle), the old and the new sine
+            # still agree at the sample before the jump: one of the two misses across it
+            # stays small, and the jump is in one of the two intervals of the other.
+            big = np.abs(np.nan_to_num(miss_left, nan=0.0)) > threshold
+            alone = big.copy()
+            alone[1:] &= ~big[:-1]
+            alone[:-1] &= ~big[1:]
+            for j in np.flatnonzero(alone):
+                flags[max(j - 2, 0) : j] = True
+        # Intervals at the window's edges cannot be judged from both sides.
+        flags[:3] = False
+        flags[-3:] = False
+        # A clean jump leaves both its samples on their own smooth curves: the one
+        # before it is predicted from the left, the one after it from the right. A
+        # filtered jump settles over several samples (or rings), so its
+        # neighbours are still in transition.
+        on_left = np.abs(np.nan_to_num(miss_left[:-1], nan=np.inf)) <= SETTLED_SIGMAS * scale
+        on_right = np.abs(np.nan_to_num(miss_right[1:], nan=np.inf)) <= SETTLED_SIGMAS * scale
+        jumps |= flags
+        clean |= flags & on_left & on_right
+        settled |= np.abs(miss_right) <= SETTLED_SIGMAS * scale
     flagged = int(np.count_nonzero(jumps))
     share = float(np.count_nonzero(clean)) / max(n - 1, 1)
     if flagged and np.count_nonzero(clean) < 0.25 * flagged:
@@ -228,14 +281,13 @@ def find_switching(v: np.ndarray) -> Switching:
     # A filtered jump is still settling after its flagged intervals: widen each
     # run forward until the next sample lies on the smooth curve after it.
     transitions = jumps.copy()
-    settled = np.abs(miss_right) <= SETTLED_SIGMAS * scale
     ends = np.flatnonzero(jumps & ~np.concatenate([jumps[1:], [False]]))
     for k in ends:
         j = k + 1
         while j < n - 1 and j - k <= MAX_SETTLING and not settled[j]:
             transitions[j] = True
             j += 1
-    return Switching(jumps, share, scale, transitions)
+    return Switching(jumps, share, min(scales), transitions)
 
 
 #: A current's bend after a voltage jump is followed over at most this many samples (a
@@ -443,9 +495,6 @@ def alias_bias(v: np.ndarray, transitions: np.ndarray, factor: float) -> tuple[f
     total = float(np.sum(np.abs(jumps))) if locked else float(np.sqrt(np.sum(jumps**2)))
     return factor * total / n, locked
 
-
-#: Mains frequencies a line-commutated converter's ripple is locked to (Hz).
-MAINS_HZ = (50.0, 60.0)
 
 #: Half-width of a mains harmonic's band: the grid's frequency wanders (a mine's
 #: own generators by up to ~0.5 %), plus the window's spectral leakage (bins).
@@ -695,19 +744,20 @@ def build_input(
     shift: float = 0.0,
     switching: Switching | None = None,
     valid: np.ndarray | None = None,
+    dt: float | None = None,
 ) -> InputModel:
     """The :class:`InputModel` of voltage samples ``v`` under ``model``.
 
     ``valid`` (per sample) marks the samples that can be used: a clipped
     voltage or current sample leaves the segments, and the simulation
-    restarts after it.
+    restarts after it. ``dt``: the sample period (see :func:`find_switching`).
     """
     n = v.shape[0]
     if model not in MODELS:
         raise ValueError(f"unknown intersample model {model!r}; expected one of {MODELS}")
     sw = switching
     if model == "switched":
-        sw = switching if switching is not None else find_switching(v)
+        sw = switching if switching is not None else find_switching(v, dt)
         segments = segments_between(sw.transition_mask)
     else:
         segments = Segments.whole(n)
@@ -720,7 +770,9 @@ def build_input(
     return InputModel(model, smooth_moments(v, segments, shift), segments, shift, sw)
 
 
-def choose_model(v: np.ndarray, requested: str = "auto") -> tuple[str, Switching]:
+def choose_model(
+    v: np.ndarray, requested: str = "auto", dt: float | None = None
+) -> tuple[str, Switching]:
     """The intersample model for voltage samples ``v``: ``requested``, or decided from the data.
 
     ``auto``: ``switched`` when the voltage shows clean jumps (an unfiltered
@@ -734,8 +786,10 @@ def choose_model(v: np.ndarray, requested: str = "auto") -> tuple[str, Switching
     std against -0.4 % on the same windows), for the field and the armature alike.
     ``hold`` is never chosen here: only the current can tell a held
     voltage from a sampled one (see :func:`observer.estimation.stages.hold_or_smooth`).
+    ``dt``: the sample period, which lets the jumps be told from mains sine segments
+    (:func:`find_switching`).
     """
-    sw = find_switching(v)
+    sw = find_switching(v, dt)
     if requested != "auto":
         if requested not in MODELS:
             raise ValueError(f"unknown intersample model {requested!r}; expected auto or {MODELS}")

@@ -379,12 +379,12 @@ def make_problem(
         # A filtered jump settles over the voltage filter's response; where the
         # current's front end differs, the samples in it do not relate to the
         # current as the segment assumes (equal front ends relate exactly).
-        sw = switching if isinstance(switching, Switching) else find_switching(voltage)
+        sw = switching if isinstance(switching, Switching) else find_switching(voltage, dt)
         settle = edge_samples(front_ends[0], front_ends[0], dt) - 2
         if sw.transitions is not None:
             switching = sw.widened(settle)
     if model == "switched":
-        sw = switching if isinstance(switching, Switching) else find_switching(voltage)
+        sw = switching if isinstance(switching, Switching) else find_switching(voltage, dt)
         # A relative delay (up to a sample behind a current's filter), fitted or learned,
         # takes the voltage of a segment's first intervals from across the jump before it:
         # the field, whose bends are too small to show a filter, read Rf +1.6 % at 2 std at
@@ -398,7 +398,7 @@ def make_problem(
     if model == "smooth":
         # Jumps between samples that a smooth reconstruction spreads over their intervals
         # (a switched model leaves them out of its segments; a held voltage has none).
-        sw = switching if isinstance(switching, Switching) else find_switching(raw_voltage)
+        sw = switching if isinstance(switching, Switching) else find_switching(raw_voltage, dt)
         known_v = front_ends[0] if front_ends is not None else None
         factor = alias_factor(
             None if known_v is None else functools.partial(known_v.response, sample_rate_hz=1 / dt),
@@ -411,7 +411,7 @@ def make_problem(
         ]
         alias_v = tuple(b for b, _ in bounds)
         alias_locked = tuple(locked for _, locked in bounds)
-    inp = build_input(voltage, model, shift=shift, switching=switching, valid=valid)  # type: ignore[arg-type]
+    inp = build_input(voltage, model, shift=shift, switching=switching, valid=valid, dt=dt)  # type: ignore[arg-type]
     problem = WindingProblem(
         voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag, alias_v,
         untold_front_end=front_ends is None and model == "smooth", alias_locked=alias_locked,
