@@ -191,14 +191,19 @@ def fit_baseline(
     # A relative delay of a large part of a period is not what a chain of equal
     # filters does: it stands in for a lag of the winding's physics (an eddy path,
     # a late current sensor), which the effects must get to explain. A smooth
-    # voltage chosen with it was chosen for that lag: the voltage is held.
-    if abs(field_est.shift_samples) > CHAIN_SHIFT:
+    # voltage chosen with it was chosen for that lag: the voltage is held. A switched
+    # one was sampled without a filter (clean jumps): beside it, a delay of up to a
+    # sample is what the current's own anti-aliasing filter does (a 2nd-order one at
+    # fs/4: 0.9 samples), and without it the segments between the jumps, too short to
+    # pin R, read the field's Rf -24 % at 2 kHz and located a false mismatch; the chain
+    # findings report that delay.
+    if abs(field_est.shift_samples) > CHAIN_SHIFT and field_est.intersample != "switched":
         field_est = estimate_field(
             rec["vf"], rec["if"], dt, n_particles=n_particles, max_iterations=iterations,
             rng=rng, intersample=_unpinned(field_est.intersample), fit_shift=False,
             front_ends=chain_kw["field"]["front_ends"],
         )  # fmt: skip
-    if abs(arm_est.shift_samples) > CHAIN_SHIFT:
+    if abs(arm_est.shift_samples) > CHAIN_SHIFT and arm_est.intersample != "switched":
         arm_est = estimate_armature(
             rec["va"], rec["ia"], rec["if"], rec["omega"], dt, n_particles=n_particles,
             max_iterations=iterations, rng=rng, compensate_input_noise=False,
@@ -801,6 +806,7 @@ def front_end_findings(
                 CURRENT_CHANNEL[circuit],
                 kernel_array(rec[voltage]),
                 kernel_array(rec[CURRENT_CHANNEL[circuit]]),
+                rec.dt,
             ),
         ):
             if found is not None:
@@ -844,7 +850,7 @@ def chain_explains(
         inp = inputs.get(circuit)
         if inp is None or inp.model != "smooth":
             continue
-        sw = find_switching(kernel_array(rec[channel]))
+        sw = find_switching(kernel_array(rec[channel]), rec.dt)
         if sw.transition_share < MIN_SWITCHED_SHARE:
             continue
         if circuit == "armature":

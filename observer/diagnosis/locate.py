@@ -129,7 +129,9 @@ def locate(
         if n_w < 1:
             continue
         blocks = r[: n_w * w].reshape(n_w, w)
-        ms = np.nanmean(blocks**2, axis=1)
+        # A block wholly outside the segments (NaN) has no mean square and is not flagged.
+        counts = np.sum(np.isfinite(blocks), axis=1)
+        ms = np.where(counts > 0, np.nansum(blocks**2, axis=1) / np.maximum(counts, 1), np.nan)
         sd = fl.variance_a2 * math.sqrt(2 * min(fl.tau_int, w) / w)
         zw = (ms - fl.variance_a2) / sd
         flagged = zw > STRUCTURE_Z
