@@ -27,6 +27,7 @@ from observer.estimation.stages import (
     EivCorrection,
     SwarmSettings,
     eiv_stage,
+    guard_stage,
     search_and_polish,
     specification_stage,
     std_stage,
@@ -141,6 +142,14 @@ def estimate_armature(
     problem, result, fit = search_and_polish(
         problem, bounds, settings, rng_, polish=polish, settled_rms=settled_rms,
         hold=hold if undecided else None,
+    )  # fmt: skip
+    problem, fit = guard_stage(
+        problem, result, fit, bounds,
+        lambda s: armature_problem(
+            va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=problem.inp.model,
+            fit_shift=fit_shift, shift=s, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
+        ),
+        polish=polish,
     )  # fmt: skip
     if compensate_input_noise:
         eiv = eiv_stage(problem, fit.point, bounds, settings, rng_)

@@ -21,6 +21,7 @@ from observer.estimation.stages import (
     EivCorrection,
     SwarmSettings,
     eiv_stage,
+    guard_stage,
     search_and_polish,
     specification_stage,
     std_stage,
@@ -101,6 +102,14 @@ def estimate_field(
         problem, bounds, settings, rng_, polish=polish, settled_rms=settled_rms,
         hold=(lambda: make_problem(vf, i_f, dt, "hold", switching=switching))
         if undecided else None,
+    )  # fmt: skip
+    problem, fit = guard_stage(
+        problem, result, fit, bounds,
+        lambda s: make_problem(
+            vf, i_f, dt, model, switching=switching, fit_shift=fit_shift, shift=s,
+            front_ends=front_ends,
+        ),
+        polish=polish,
     )  # fmt: skip
     if compensate_input_noise:
         eiv = eiv_stage(problem, fit.point, bounds, settings, rng_)

@@ -260,9 +260,9 @@ def find_switching(v: np.ndarray, dt: float | None = None) -> Switching:
             alone = big.copy()
             alone[1:] &= ~big[:-1]
             alone[:-1] &= ~big[1:]
-            j = np.flatnonzero(alone)
-            flags[j[j >= 2] - 2] = True
-            flags[j[j >= 1] - 1] = True
+            at = np.flatnonzero(alone)
+            flags[at[at >= 2] - 2] = True
+            flags[at[at >= 1] - 1] = True
         # Intervals at the window's edges cannot be judged from both sides.
         flags[:3] = False
         flags[-3:] = False

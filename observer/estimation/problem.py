@@ -135,6 +135,18 @@ class WindingProblem:
             self._mu_cache[key] = mu
         return mu
 
+    def guards(self, shift: float) -> bool:
+        """Whether a fit that found relative delay ``shift`` must be redone from it.
+
+        A ``switched`` problem leaves out the first samples of each segment that a
+        delay takes from across the jump before it (:func:`make_problem`); when the
+        fitted delay leaves out more than the delay it started from, the fit used
+        samples whose voltage came from across the jump.
+        """
+        if self.inp.model != "switched" or not self.fit_shift:
+            return False
+        return _guard(shift) > _guard(self.inp.shift)
+
     def with_shift(self, shift: float, lag: float | None = None) -> WindingProblem:
         """The same problem with the input model read at ``shift`` (and ``lag``)."""
         lag_ = self.lag if lag is None else float(lag)
@@ -301,6 +313,12 @@ class WindingProblem:
 #: first interval in (see :func:`make_problem`).
 DELAY_SLACK = 0.2
 
+
+def _guard(shift: float) -> int:
+    """Samples left out at the start of each switched segment for a relative delay ``shift``."""
+    return max(0, math.ceil(abs(shift) - DELAY_SLACK))
+
+
 #: A window with less than this share of its samples inside segments (a ``switched``
 #: voltage whose jumps, and the current's settling after them, leave little between) does
 #: not describe its circuit: an unfiltered 6-pulse voltage beside a current filtered at fs/4
@@ -388,10 +406,11 @@ def make_problem(
         # A relative delay (up to a sample behind a current's filter), fitted or learned,
         # takes the voltage of a segment's first intervals from across the jump before it:
         # the field, whose bends are too small to show a filter, read Rf +1.6 % at 2 std at
-        # 5 kHz. A fitted one is not known yet: one sample. A learned one of a fifth of a
-        # sample or less (channels filtered alike) takes too little to pay for a sample
-        # of every segment at 2 kHz.
-        delay = max(1 if fit_shift else 0, math.ceil(abs(shift) - DELAY_SLACK))
+        # 5 kHz. One of a fifth of a sample or less (channels filtered alike) takes too
+        # little to pay for a sample of every segment at 2 kHz. A fitted delay is not known
+        # before the fit: the fit starts from ``shift``, and is redone once if the delay
+        # it finds asks for more (:meth:`WindingProblem.guards`).
+        delay = _guard(shift)
         switching = settle_current(current, voltage, sw, at_least=delay)
     alias_v: tuple[float, ...] = ()
     alias_locked: tuple[bool, ...] = ()

@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -339,6 +340,33 @@ def search_and_polish(
     else:
         fit = polish_stage(problem, result, bounds, polish=polish)
     return problem, result, fit
+
+
+def guard_stage(
+    problem: WindingProblem,
+    result: PSOResult,
+    fit: PolishedFit,
+    bounds: SearchRange,
+    rebuild: Callable[[float], WindingProblem],
+    *,
+    polish: bool = True,
+) -> tuple[WindingProblem, PolishedFit]:
+    """Stage 2b: a switched fit whose delay asks for more of each segment left out, redone.
+
+    ``rebuild(shift)`` makes the window's problem read at that relative delay
+    (:meth:`~observer.estimation.problem.WindingProblem.guards`); it is
+    polished from the fit's own point. Channels filtered alike (delay under a
+    fifth of a sample) keep every sample: leaving the first of every segment
+    out for a delay not yet known cost unfiltered 2 kHz recordings a sixth of
+    their samples, and at 60 Hz mains Ra -0.7 % at 3 std.
+    """
+    if not problem.guards(fit.point.shift):
+        return problem, fit
+    guarded = rebuild(fit.point.shift)
+    start = dataclasses.replace(
+        result, x=np.log10([fit.point.resistance_ohm, fit.point.inductance_h])
+    )
+    return guarded, polish_stage(guarded, start, bounds, polish=polish)
 
 
 def eiv_stage(
