@@ -20,12 +20,18 @@ Three measurements, each a subcommand:
     Clean simulated recordings totalling ``--hours`` (in pieces of
     ``--piece-s``), replayed as fast as possible: every event is a false alarm.
 
+``steps`` and ``false-alarms`` simulate the drive of ``--preset``: ``ideal``
+(voltages held over each sample, no front end) or ``realistic`` (the thyristor
+bridges, anti-aliasing filters and ADC of ``dcobserver simulate``'s default),
+observed with the default configuration (front ends not configured).
+
 Usage::
 
     python -m bench.tracker_bench accuracy replay/data/demo.mcap
     python -m bench.tracker_bench accuracy THERMAL.mcap --tol Ra=0.004,Rf=0.001 --after 8
     python -m bench.tracker_bench steps --seeds 20 --workers 2
     python -m bench.tracker_bench false-alarms --hours 1 --workers 2
+    python -m bench.tracker_bench steps --seeds 20 --preset realistic
 """
 
 from __future__ import annotations
@@ -50,6 +56,7 @@ from observer.estimation.motor import P12
 from observer.recording import Recording, read_recording
 from observer.service.daemon import run_offline
 from observer.service.window_observer import WindowResult
+from observer.simulation.converter import PRESETS
 from observer.simulation.effects_sim import Change
 from observer.simulation.simulate import simulate, true_parameters
 
@@ -196,10 +203,17 @@ def accuracy_table(results: Sequence[Accuracy]) -> str:
 # ---------------------------------------------------------------- steps
 
 
-def _step_run(args: tuple[str, float, int, float, float]) -> dict[str, Any]:
-    target, relative, seed, at_s, duration_s = args
+def _drive(preset: str) -> dict[str, Any]:
+    """``simulate``'s drive arguments for a preset name (:data:`PRESETS`)."""
+    if preset not in PRESETS:
+        raise SystemExit(f"--preset: unknown {preset!r}; expected one of {sorted(PRESETS)}")
+    return {"drive": PRESETS[preset], "drive_name": preset}
+
+
+def _step_run(args: tuple[str, float, int, float, float, str]) -> dict[str, Any]:
+    target, relative, seed, at_s, duration_s, preset = args
     rec = simulate(P12, duration_s=duration_s, seed=1000 + seed,
-                   changes=(Change(target, relative, at_s),))  # fmt: skip
+                   changes=(Change(target, relative, at_s),), **_drive(preset))  # fmt: skip
     estimates = observe(rec, Config())
     events = [ev for e in estimates for ev in e.get("events", [])]
     wanted = "tachometer" if target == "tach" else "change"
@@ -229,6 +243,7 @@ def _step_run(args: tuple[str, float, int, float, float]) -> dict[str, Any]:
         "target": target,
         "relative": relative,
         "seed": seed,
+        "preset": preset,
         "at_s": at_s,
         "detected": first is not None,
         "delay_s": None if first is None else first["t_ns"] / 1e9 - at_s,
@@ -244,11 +259,14 @@ def _step_run(args: tuple[str, float, int, float, float]) -> dict[str, Any]:
     }
 
 
-def steps(seeds: int, workers: int, duration_s: float = 30.0) -> list[dict[str, Any]]:
+def steps(
+    seeds: int, workers: int, duration_s: float = 30.0, preset: str = "ideal"
+) -> list[dict[str, Any]]:
     """Run every step of :data:`STEPS` over ``seeds`` seeds (step at a random time 12-20 s)."""
+    _drive(preset)  # an unknown preset fails before the runs
     rng = np.random.default_rng(11)
     jobs = [
-        (target, relative, seed, float(rng.uniform(12.0, 20.0)), duration_s)
+        (target, relative, seed, float(rng.uniform(12.0, 20.0)), duration_s, preset)
         for target, relative in STEPS
         for seed in range(seeds)
     ]
@@ -293,20 +311,23 @@ def _identified_cell(hit: Sequence[dict[str, Any]]) -> str:
 # ---------------------------------------------------------------- false alarms
 
 
-def _clean_run(args: tuple[int, float]) -> dict[str, Any]:
-    seed, duration_s = args
-    rec = simulate(P12, duration_s=duration_s, seed=5000 + seed)
+def _clean_run(args: tuple[int, float, str]) -> dict[str, Any]:
+    seed, duration_s, preset = args
+    rec = simulate(P12, duration_s=duration_s, seed=5000 + seed, **_drive(preset))
     started = time.perf_counter()
     estimates = observe(rec, Config())
     elapsed = time.perf_counter() - started
     events = [ev["message"] for e in estimates for ev in e.get("events", [])]
     return {"seed": seed, "duration_s": duration_s, "windows": len(estimates),
-            "events": events, "replay_s": elapsed}  # fmt: skip
+            "events": events, "replay_s": elapsed, "preset": preset}  # fmt: skip
 
 
-def false_alarms(hours: float, piece_s: float, workers: int) -> list[dict[str, Any]]:
+def false_alarms(
+    hours: float, piece_s: float, workers: int, preset: str = "ideal"
+) -> list[dict[str, Any]]:
+    _drive(preset)
     pieces = max(1, math.ceil(hours * 3600.0 / piece_s))
-    return _map(_clean_run, [(seed, piece_s) for seed in range(pieces)], workers)
+    return _map(_clean_run, [(seed, piece_s, preset) for seed in range(pieces)], workers)
 
 
 def false_alarm_line(runs: Sequence[dict[str, Any]]) -> str:
@@ -316,7 +337,8 @@ def false_alarm_line(runs: Sequence[dict[str, Any]]) -> str:
     replay = sum(r["replay_s"] for r in runs)
     return (
         f"{len(events)} events (false alarms) in {total_s / 3600:.2f} h of clean P-12 "
-        f"recordings, {len(events) / (total_s / 3600):.1f} per hour"
+        f"recordings ({runs[0].get('preset', 'ideal')} drive), "
+        f"{len(events) / (total_s / 3600):.1f} per hour"
         f" ({len(runs)} pieces of {runs[0]['duration_s']:g} s, {windows} windows; "
         f"replay {total_s / replay:.1f}x real time per worker)"
         + ("" if not events else ": " + "; ".join(events[:5]))
@@ -360,10 +382,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     st.add_argument("--seeds", type=int, default=20)
     st.add_argument("--workers", type=int, default=2)
     st.add_argument("--duration", type=float, default=30.0)
+    st.add_argument("--preset", default="ideal", choices=sorted(PRESETS),
+                    help="drive simulated (default: %(default)s)")  # fmt: skip
     fa = sub.add_parser("false-alarms", help="events on clean recordings")
     fa.add_argument("--hours", type=float, default=1.0)
     fa.add_argument("--piece-s", type=float, default=600.0)
     fa.add_argument("--workers", type=int, default=2)
+    fa.add_argument("--preset", default="ideal", choices=sorted(PRESETS),
+                    help="drive simulated (default: %(default)s)")  # fmt: skip
     args = parser.parse_args(argv)
 
     if args.command == "accuracy":
@@ -390,11 +416,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                   f"{res.events or 'none'}", file=sys.stderr)  # fmt: skip
         print(accuracy_table(results))
     elif args.command == "steps":
-        runs = steps(args.seeds, args.workers, args.duration)
+        runs = steps(args.seeds, args.workers, args.duration, args.preset)
         print(json.dumps(runs), file=sys.stderr)
         print(steps_table(runs))
     else:
-        runs = false_alarms(args.hours, args.piece_s, args.workers)
+        runs = false_alarms(args.hours, args.piece_s, args.workers, args.preset)
         print(json.dumps(runs), file=sys.stderr)
         print(false_alarm_line(runs))
     return 0

@@ -40,3 +40,11 @@ def test_steps_and_false_alarm_summaries():
     clean = [{"duration_s": 1800.0, "windows": 100, "events": [], "replay_s": 600.0}] * 2
     line = tracker_bench.false_alarm_line(clean)
     assert line.startswith("0 events (false alarms) in 1.00 h") and "0.0 per hour" in line
+
+
+def test_false_alarms_run_on_the_realistic_drive():
+    runs = tracker_bench.false_alarms(3.0 / 3600.0, 3.0, 1, preset="realistic")
+    assert [r["preset"] for r in runs] == ["realistic"] and runs[0]["windows"] > 0
+    assert "(realistic drive)" in tracker_bench.false_alarm_line(runs)
+    with pytest.raises(SystemExit, match="--preset: unknown 'thyristor'"):
+        tracker_bench.steps(1, 1, preset="thyristor")
