@@ -273,3 +273,27 @@ def test_a_current_filtered_apart_from_its_voltage_is_given_time_to_settle(filte
         assert m >= 3
     else:
         assert m == 0
+
+
+def test_a_filtered_drive_voltage_reads_smooth_in_every_window():
+    """The realistic drive's armature voltage (a 6-pulse bridge behind a 2nd-order filter at
+    fs/4) at 2 kHz: the mains sine, which fits no filtered segment, must not read the
+    filter's settling as clean jumps. One window in ten of this recording did (13-34 % of
+    their flagged intervals 'clean'), and the switched model then fitted Ra +2.2 % at 0.5 %
+    std; an unfiltered one's windows keep reading switched."""
+    from observer.estimation.motor import P12
+    from observer.simulation.chain import ChannelChain, MeasurementChain
+    from observer.simulation.converter import PRESETS
+    from observer.simulation.simulate import simulate
+
+    drive = PRESETS["realistic"]
+    assert drive is not None
+    rec = simulate(P12, duration_s=30.0, seed=1001, drive=drive, drive_name="realistic")
+    va = np.asarray(rec["va"], dtype=float)
+    windows = [va[k : k + 2000] for k in range(0, va.size - 1999, 2000)]
+    assert not [k for k, w in enumerate(windows) if find_switching(w, 1 / FS).switched]
+    assert [choose_model(w, dt=1 / FS)[0] for w in windows] == ["smooth"] * len(windows)
+    bare = drive.replace(chain=MeasurementChain.uniform(ChannelChain(bits=12)))
+    va = np.asarray(simulate(P12, duration_s=30.0, seed=1001, drive=bare)["va"], dtype=float)
+    windows = [va[k : k + 2000] for k in range(0, va.size - 1999, 2000)]
+    assert np.mean([find_switching(w, 1 / FS).switched for w in windows]) >= 0.7
