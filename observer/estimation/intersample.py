@@ -270,9 +270,9 @@ def find_switching(v: np.ndarray, dt: float | None = None) -> Switching:
             alone[:-1] &= ~big[1:]
             at = np.flatnonzero(alone)
             for back in (2, 1):
-                k = at[at >= back] - back
-                alone_miss[k] = np.where(flags[k], 0.0, np.abs(miss_left[k + back]))
-                flags[k] = True
+                before = at[at >= back] - back
+                alone_miss[before] = np.where(flags[before], 0.0, np.abs(miss_left[before + back]))
+                flags[before] = True
         # Intervals at the window's edges cannot be judged from both sides.
         flags[:3] = False
         flags[-3:] = False
