@@ -24,7 +24,12 @@ import numpy as np
 
 from observer.estimation import intersample_kernels as ik
 from observer.estimation.frontend import unknown_mismatch
-from observer.estimation.intersample import mains_ripple_share
+from observer.estimation.intersample import (
+    averaged_moments,
+    hold_moments,
+    mains_ripple_share,
+    smooth_moments,
+)
 from observer.estimation.polish import jacobian, levenberg_marquardt
 from observer.estimation.problem import WindingProblem
 from observer.estimation.pso import CostFunction, ParticleSwarm, PSOResult
@@ -38,6 +43,10 @@ COMPENSATION_FACTOR = 1.5
 #: ``smooth`` replaces ``hold`` only when it lowers eq. (1) by this many residual
 #: variances: one extra parameter (the shift) alone lowers it by about one.
 SMOOTH_OVER_HOLD = 25.0
+
+#: White-noise draws over which :func:`averaged_noise` averages a model's noise gain
+#: (fixed draws: the same window always gives the same decision, so replay is exact).
+NOISE_DRAWS = 4
 
 #: Relative uncertainty no window of a *measured* voltage (every model but
 #: ``hold``) goes below: the reconstruction between samples and the front ends
@@ -275,9 +284,49 @@ def hold_or_smooth(
     rss_smooth = float(fit_smooth.point.residual @ fit_smooth.point.residual)
     rss_hold = float(fit_hold.point.residual @ fit_hold.point.residual)
     sigma2 = rss_smooth / max(fit_smooth.point.residual.size, 1)
+    # Noise on the measured voltage reaches eq. (1) through each model: the
+    # held sample passes all of it, the band-limited reconstruction averages
+    # neighbours and passes less. That share of smooth's lead is noise, not a
+    # better model.
+    noise_var = min(_input_noise(hold, fit_hold), _input_noise(smooth, fit_smooth))
+    if noise_var > 0.0:
+        rss_hold -= noise_var * (
+            averaged_noise(hold, fit_hold.theta) - averaged_noise(smooth, fit_smooth.theta)
+        )
     if sigma2 > 0 and (rss_hold - rss_smooth) / sigma2 > SMOOTH_OVER_HOLD:
         return smooth, fit_smooth
     return hold, fit_hold
+
+
+def _input_noise(problem: WindingProblem, fit: PolishedFit) -> float:
+    """The white voltage-noise variance (V^2) the fit's residual shows (0: none)."""
+    a_, c0, _, _ = ik.moment_coefficients(
+        fit.point.resistance_ohm, fit.point.inductance_h, problem.dt
+    )
+    return input_noise_variance(fit.point.residual, a_, c0)
+
+
+def averaged_noise(problem: WindingProblem, theta: np.ndarray) -> float:
+    """Expected share of eq. (1) (A^2 per V^2) that unit white noise on the voltage adds.
+
+    The residual is affine in the voltage, so the noise's response is the
+    residual's change when a draw of it is added, read through the problem's
+    own intersample model (held, averaged or band-limited); averaged over
+    :data:`NOISE_DRAWS` fixed draws.
+    """
+    rng = np.random.default_rng(0)
+    shift = problem.unpack(theta)[3]
+    changes = []
+    for _ in range(NOISE_DRAWS):
+        dv = np.asarray(rng.standard_normal(problem.voltage.shape[0]), dtype=np.float64)
+        if problem.inp.model == "hold":
+            changes.append(hold_moments(dv))
+        elif problem.inp.model == "averaged":
+            changes.append(averaged_moments(dv))
+        else:
+            changes.append(smooth_moments(dv, problem.inp.segments, shift))
+    columns = problem.moment_columns(theta, changes)
+    return float(np.sum(columns * columns)) / NOISE_DRAWS
 
 
 #: Half-widths (log10) of the stencils on which :func:`local_minimum` models the
