@@ -297,3 +297,32 @@ def test_a_filtered_drive_voltage_reads_smooth_in_every_window():
     va = np.asarray(simulate(P12, duration_s=30.0, seed=1001, drive=bare)["va"], dtype=float)
     windows = [va[k : k + 2000] for k in range(0, va.size - 1999, 2000)]
     assert np.mean([find_switching(w, 1 / FS).switched for w in windows]) >= 0.7
+
+
+def test_a_long_segment_mirrored_past_its_ends_keeps_the_interior_moments():
+    """From HALF_SAMPLE_MIRROR samples on a segment is mirrored about the half sample past its
+    ends (a fast FFT length for a 1 s window); away from its ends the moments are those of the
+    mirror about the end samples, and both are the exact moments of a slow sine."""
+    from observer.estimation.intersample import HALF_SAMPLE_MIRROR, smooth_moments
+
+    m = 2000
+    assert m >= HALF_SAMPLE_MIRROR
+    k = np.arange(m, dtype=np.float64)
+    f = 0.013  # cycles per sample, far below Nyquist
+    v = np.sin(2 * np.pi * f * k)
+    got = smooth_moments(v, Segments.whole(m), 0.25)
+    # The exact mean over [k + 0.25, k + 1.25] of the sine.
+    w = 2 * np.pi * f
+    lo, hi = k[:-1] + 0.25, k[:-1] + 1.25
+    exact = (np.cos(w * lo) - np.cos(w * hi)) / w
+    interior = slice(100, m - 100)
+    np.testing.assert_allclose(got[interior, 0], exact[interior], atol=2e-4)
+    # The end-sample mirror (2m - 2 long), as shorter segments keep it.
+    ext = np.concatenate([v, v[-2:0:-1]])
+    n = ext.size
+    spec = np.fft.rfft(ext) * np.exp(1j * 2 * np.pi * np.fft.rfftfreq(n) * 0.25)
+    u, wq = np.polynomial.legendre.leggauss(12)
+    u = 0.5 * (u + 1.0)
+    resp = np.exp(1j * np.outer(2 * np.pi * np.fft.rfftfreq(n), u)) @ (0.5 * wq)
+    old = np.fft.irfft(spec * resp, n)[: m - 1]
+    np.testing.assert_allclose(got[interior, 0], old[interior], atol=2e-4)
