@@ -28,6 +28,13 @@ Three findings come from the front end alone, whatever the motor does:
     The winding's front ends are not configured, and a mismatch of the voltage
     and current channels' filters would move its inductance by more than
     :data:`FRONT_END_SHARE` (the estimate's ``front_end_std``).
+``pwm_sampled_bare``
+    The voltage's samples sit at a PWM converter's levels and change level in
+    many intervals: a chopper's terminals sampled without a filter, whose
+    samples do not show the duty cycle
+    (:func:`~observer.estimation.intersample.pwm_level_changes`). The
+    estimator then describes no window of that winding, and no motor effect
+    can be judged from it.
 ``current_filtered_apart``
     The voltage was sampled without a filter (clean jumps) and the current
     through one: the current's bend after every jump rings out over the
@@ -44,7 +51,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from observer.diagnosis.results import ChainFinding
-from observer.estimation.intersample import current_settling, find_switching
+from observer.estimation.intersample import current_settling, find_switching, pwm_level_changes
+from observer.estimation.problem import PWM_CHANGES
 
 #: Line content in the top eighth-band below Nyquist at least this share of the one below
 #: it: the spectrum does not fall towards Nyquist (a filter of order n at fs/4 gives about
@@ -76,6 +84,10 @@ SKEW_ADVICE = (
 FRONT_END_ADVICE = (
     "configure the {ch} and {cur} channels' front ends in [chain] (filter kind, order and "
     "cutoff of each): the estimator then models them exactly"
+)
+PWM_ADVICE = (
+    "filter the {ch} channel (an anti-aliasing filter at or below fs/4, well below the carrier) "
+    "or measure it averaged over each sample period, and configure it in [chain.{ch}]"
 )
 CURRENT_FILTER_ADVICE = (
     "give the {ch} channel the {cur} channel's anti-aliasing filter (which also keeps the "
@@ -275,4 +287,20 @@ def current_filter_finding(
         f"out over {settle} samples, which the estimator leaves out ({100 * share:.0f} % of the "
         "samples); the two channels do not see the converter alike",
         CURRENT_FILTER_ADVICE.format(ch=voltage, cur=current),
+    )
+
+
+def pwm_finding(channel: str, v: np.ndarray) -> ChainFinding | None:
+    """``pwm_sampled_bare`` if ``v`` sits at a PWM converter's levels and changes level often."""
+    share = pwm_level_changes(v)
+    if share < PWM_CHANGES:
+        return None
+    return ChainFinding(
+        channel,
+        "pwm_sampled_bare",
+        f"measurement chain: {channel} sits at its converter's levels and changes level in "
+        f"{100 * share:.0f} % of the intervals: a PWM voltage sampled without an anti-aliasing "
+        "filter, whose samples do not show how long it stayed at each level; the winding "
+        "cannot be estimated from it, and no motor effect judged",
+        PWM_ADVICE.format(ch=channel),
     )

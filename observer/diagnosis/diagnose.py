@@ -57,6 +57,7 @@ from observer.diagnosis.chain import (
     current_filter_finding,
     front_end_finding,
     no_filter_finding,
+    pwm_finding,
     skew_finding,
     voltage_spectrum,
 )
@@ -796,6 +797,7 @@ def front_end_findings(
         est = baseline.field if circuit == "field" else baseline.armature
         name = "Lf" if circuit == "field" else "La"
         for found in (
+            pwm_finding(voltage, kernel_array(rec[voltage])),
             no_filter_finding(voltage, spectra[circuit]),
             skew_finding(voltage, CURRENT_CHANNEL[circuit], shift, std, rec.dt),
             front_end_finding(

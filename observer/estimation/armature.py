@@ -15,7 +15,7 @@ import numpy as np
 
 from observer.estimation.frontend import FrontEnd
 from observer.estimation.intersample import choose_model
-from observer.estimation.problem import WindingProblem, coverage_note, make_problem
+from observer.estimation.problem import WindingProblem, coverage_note, make_problem, pwm_note
 from observer.estimation.ranges import (
     SearchRange,
     armature_search_range,
@@ -159,7 +159,7 @@ def estimate_armature(
     std = std_stage(problem, fit, eiv, spec)
     point = eiv.point
     coverage = problem.segments.covered / n
-    note = coverage_note(coverage, "armature")
+    note = pwm_note(va, "armature") or coverage_note(coverage, "armature")
     return CircuitEstimate(
         circuit="armature",
         resistance_ohm=point.resistance_ohm,

@@ -14,7 +14,7 @@ import numpy as np
 
 from observer.estimation.frontend import FrontEnd
 from observer.estimation.intersample import choose_model
-from observer.estimation.problem import coverage_note, make_problem
+from observer.estimation.problem import coverage_note, make_problem, pwm_note
 from observer.estimation.ranges import SearchRange, check_signals, field_search_range, kernel_array
 from observer.estimation.result import CircuitEstimate
 from observer.estimation.stages import (
@@ -119,7 +119,7 @@ def estimate_field(
     std = std_stage(problem, fit, eiv, spec)
     point = eiv.point
     coverage = problem.segments.covered / n
-    note = coverage_note(coverage, "field")
+    note = pwm_note(vf, "field") or coverage_note(coverage, "field")
     return CircuitEstimate(
         circuit="field",
         resistance_ohm=point.resistance_ohm,

@@ -699,6 +699,44 @@ MIN_SPECTRAL_SEGMENT = 16
 HALF_SAMPLE_MIRROR = 512
 
 
+#: A voltage whose samples sit (this share of them, within :data:`PWM_LEVEL_TOLERANCE` of
+#: its range) at two levels, or three with zero between, is a switched converter's voltage
+#: sampled at its output levels: a PWM chopper's terminals without an anti-aliasing filter.
+PWM_LEVEL_SHARE = 0.9
+PWM_LEVEL_TOLERANCE = 0.05
+
+
+def pwm_level_changes(v: np.ndarray) -> float:
+    """Share of intervals over which a voltage sampled at a PWM converter's levels changes level.
+
+    Samples that sit at two levels (the window's extremes) or three (zero between), with at
+    least :data:`PWM_LEVEL_SHARE` of them there, are a chopper's terminals sampled bare: each
+    sample is the level at its instant, and nothing in the samples says how long the voltage
+    stayed there between them (the duty cycle) -- no intersample model can describe it. 0 for
+    any other voltage: a bridge's sine pieces, a filtered or held voltage, one level, or
+    levels that change in fewer intervals than a carrier would.
+
+    Measured on the simulator's 4-quadrant chopper (2 kHz carrier) sampled bare at 5 and
+    10 kHz: 98-99 % of the samples at the levels; a 6-pulse bridge sampled bare, and either
+    converter behind a 2nd-order filter at fs/4: no more than 30 %.
+    """
+    x = np.asarray(v, dtype=np.float64)
+    if x.size < 3 or not np.all(np.isfinite(x)):
+        return 0.0
+    lo, hi = (float(q) for q in np.percentile(x, [0.5, 99.5]))
+    tol = PWM_LEVEL_TOLERANCE * (hi - lo)
+    if not tol > 0.0:
+        return 0.0
+    levels = [lo, hi] + ([0.0] if lo + 2 * tol < 0.0 < hi - 2 * tol else [])
+    distance = np.abs(x[:, None] - np.asarray(levels)[None, :])
+    on = distance.min(axis=1) <= tol
+    if on.mean() < PWM_LEVEL_SHARE:
+        return 0.0
+    level = distance.argmin(axis=1)
+    changes = on[1:] & on[:-1] & (level[1:] != level[:-1])
+    return float(changes.mean())
+
+
 @functools.lru_cache(maxsize=32)
 def _legendre_responses(n: int) -> np.ndarray:
     """``(3, n // 2 + 1)``: the three interval moments of ``exp(j w u)``, ``u`` in [0, 1], at the
@@ -855,6 +893,7 @@ __all__ = [
     "emf_moments",
     "find_switching",
     "hold_moments",
+    "pwm_level_changes",
     "rail_samples",
     "restrict",
     "segments_between",

@@ -147,3 +147,20 @@ def test_a_configured_chain_reaches_the_baseline():
     diag = diagnose(rec, chain=chain, effects=["brush_drop"], n_particles=8, iterations=5)
     assert diag.intersample["armature"]["model"] == "smooth"
     assert np.isfinite(diag.baseline_rms["armature"])
+
+
+def test_a_chopper_sampled_bare_is_a_chain_finding_on_both_windings():
+    """The 4-quadrant chopper (2 kHz carrier) and its field chopper sampled at 5 kHz without
+    filters: the samples sit at the converters' levels. The chain says so, with what to do."""
+    from observer.simulation.converter import ConverterSpec
+
+    drive = NO_FILTER.replace(converter=ConverterSpec(armature="chopper", field="chopper"))
+    rec = simulate(
+        P12, duration_s=3.0, sample_rate_hz=5000.0, seed=3, drive=drive, drive_name="chopper"
+    )
+    diag = diagnose(rec)
+    pwm = {c.channel: c for c in diag.chain if c.kind == "pwm_sampled_bare"}
+    assert set(pwm) == {"va", "vf"}, [c.kind for c in diag.chain]
+    assert "averaged" in pwm["va"].advice and "[chain.va]" in pwm["va"].advice
+    # A motor effect is never named from such samples.
+    assert diag.verdict in {NONE, UNEXPLAINED}, diag.verdict
