@@ -269,11 +269,13 @@ def _notes(
     from observer.commands.display import K_EXPLAINED, NAMES, eng
 
     lines = []
-    missing = [
-        f"{NAMES[(c, p)]} ({reason})"
-        for c, values in report.items()
-        for p, reason in values["not_identified"].items()
-    ]
+    # Parameters that share a reason (a window the model cannot describe says it for each
+    # of its circuit's parameters) are named together: "Ra, La, K (reason)".
+    by_reason: dict[str, list[str]] = {}
+    for c, values in report.items():
+        for p, reason in values["not_identified"].items():
+            by_reason.setdefault(reason, []).append(NAMES[(c, p)])
+    missing = [f"{', '.join(names)} ({reason})" for reason, names in by_reason.items()]
     limit_text = ", ".join(
         f"{NAMES[(c, p)]} {100 * v:g} %" for c, lim in limits.items() for p, v in lim.items()
     )

@@ -620,3 +620,22 @@ def test_decimated_converter_voltages_are_means_not_held_values(tmp_path):
     for name in ("Ra", "K"):
         assert result[name]["ok"] > 0.3, result[name]
         assert result[name]["cov"] >= 0.9, (name, result[name])
+
+
+def test_parameters_not_identified_for_one_reason_are_named_together():
+    """A window the model cannot describe says so for each of its circuit's parameters: the
+    table's note names them once, with the reason once."""
+    from observer.commands.estimate import _notes
+
+    why = "the model does not describe the data (a PWM voltage sampled bare)"
+    report = {
+        "field": {"not_identified": {"L": "relative std 3 %"}, "quality": {"R": "ok", "L": "none"}},
+        "armature": {
+            "not_identified": {"R": why, "L": why, "K": why},
+            "quality": {"R": "none", "L": "none", "K": "none"},
+        },
+    }
+    limits = {"field": {"R": 0.004, "L": 0.004}, "armature": {"R": 0.008, "L": 0.02, "K": 0.004}}
+    line = _notes(report, limits, [])[0]
+    assert line.count(why) == 1
+    assert f"Ra, La, K ({why})" in line and "Lf (relative std 3 %)" in line
