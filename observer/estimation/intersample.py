@@ -546,15 +546,30 @@ def mains_ripple_share(v: np.ndarray, dt: float) -> float:
         return 0.0
     t = np.arange(n, dtype=np.float64)
     x = x - np.polyval(np.polyfit(t, x, 1), t)
-    power = np.abs(np.fft.rfft(x * np.hanning(n))) ** 2
-    f = np.fft.rfftfreq(n, dt)
-    above = f >= RIPPLE_FLOOR_HZ
+    above, window, bands = _ripple_bands(n, float(dt))
+    power = np.abs(np.fft.rfft(x * window)) ** 2
     total = float(power[above].sum())
     if not total > 0.0:
         return 0.0
+    best = 0.0
+    for in_band, flat in bands:
+        share = float(power[in_band].sum()) / total
+        best = max(best, (share - flat) / (1.0 - flat))
+    return best
+
+
+@functools.lru_cache(maxsize=16)
+def _ripple_bands(
+    n: int, dt: float
+) -> tuple[np.ndarray, np.ndarray, tuple[tuple[np.ndarray, float], ...]]:
+    """For :func:`mains_ripple_share` on ``n`` samples at period ``dt`` (a window's length
+    repeats, so cached): the bins above the floor, the Hann window, and per mains frequency
+    the bins of its harmonics' bands with the share a flat spectrum puts there."""
+    f = np.fft.rfftfreq(n, dt)
+    above = f >= RIPPLE_FLOOR_HZ
     bin_hz = 1.0 / (n * dt)
     nyquist = 0.5 / dt
-    best = 0.0
+    bands = []
     for mains in MAINS_HZ:
         harmonics = np.arange(2.0, min(nyquist, RIPPLE_CEILING_HZ) / mains) * mains
         if harmonics.size == 0:
@@ -564,11 +579,14 @@ def mains_ripple_share(v: np.ndarray, dt: float) -> float:
         in_band = above & nearest.any(axis=1)
         # What a flat spectrum would put in the bands, taken off (short windows' bands
         # are wide): 0 for noise, 1 for pure ripple.
-        flat = float(np.count_nonzero(in_band)) / float(np.count_nonzero(above))
-        share = float(power[in_band].sum()) / total
+        flat = float(np.count_nonzero(in_band)) / max(float(np.count_nonzero(above)), 1.0)
         if flat < 1.0:
-            best = max(best, (share - flat) / (1.0 - flat))
-    return best
+            in_band.flags.writeable = False
+            bands.append((in_band, flat))
+    above.flags.writeable = False
+    window = np.hanning(n)
+    window.flags.writeable = False
+    return above, window, tuple(bands)
 
 
 def segments_between(jumps: np.ndarray, min_length: int = MIN_SEGMENT) -> Segments:
@@ -721,20 +739,26 @@ def pwm_level_changes(v: np.ndarray) -> float:
     converter behind a 2nd-order filter at fs/4: no more than 30 %.
     """
     x = np.asarray(v, dtype=np.float64)
-    if x.size < 3 or not np.all(np.isfinite(x)):
+    n = x.size
+    if n < 3 or not np.all(np.isfinite(x)):
         return 0.0
-    lo, hi = (float(q) for q in np.percentile(x, [0.5, 99.5]))
+    # The 0.5th and 99.5th percentiles (order statistics: one partition, no interpolation).
+    k_lo, k_hi = int(0.005 * (n - 1)), int(math.ceil(0.995 * (n - 1)))
+    part = np.partition(x, (k_lo, k_hi))
+    lo, hi = float(part[k_lo]), float(part[k_hi])
     tol = PWM_LEVEL_TOLERANCE * (hi - lo)
     if not tol > 0.0:
         return 0.0
-    levels = [lo, hi] + ([0.0] if lo + 2 * tol < 0.0 < hi - 2 * tol else [])
-    distance = np.abs(x[:, None] - np.asarray(levels)[None, :])
-    on = distance.min(axis=1) <= tol
-    if on.mean() < PWM_LEVEL_SHARE:
+    # Level of each sample: 1 at hi, -1 at lo, 0 at zero (three levels only), else none.
+    at_hi = np.abs(x - hi) <= tol
+    at_lo = np.abs(x - lo) <= tol
+    at_zero = np.abs(x) <= tol if lo + 2 * tol < 0.0 < hi - 2 * tol else np.zeros(n, bool)
+    on = at_hi | at_lo | at_zero
+    if np.count_nonzero(on) < PWM_LEVEL_SHARE * n:
         return 0.0
-    level = distance.argmin(axis=1)
+    level = at_hi.astype(np.int8) - at_lo.astype(np.int8)
     changes = on[1:] & on[:-1] & (level[1:] != level[:-1])
-    return float(changes.mean())
+    return float(np.count_nonzero(changes)) / (n - 1)
 
 
 @functools.lru_cache(maxsize=32)
