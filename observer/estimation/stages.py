@@ -554,7 +554,11 @@ def specification_stage(
     delta = np.array([math.log(r_lp / full[0]), math.log(l_lp / full[1]), k_lp - full[2]])
     noise_var = np.zeros(3)
     n_core = 2 + int(problem.fits_k)
-    noise_var[:n_core] = np.maximum(std_lp[:n_core] ** 2 - std_full[:n_core] ** 2, 0.0)
+    # An exact fit (a channel without noise) has no bound at all: inf on both sides, and no
+    # model error can be read from the difference.
+    with np.errstate(invalid="ignore"):
+        gap = std_lp[:n_core] ** 2 - std_full[:n_core] ** 2
+    noise_var[:n_core] = np.where(np.isnan(gap), np.inf, np.maximum(gap, 0.0))
     excess = np.maximum(delta**2 - noise_var, 0.0)
     model = np.sqrt(excess)
     model_std = np.array([full[0] * model[0], full[1] * model[1], model[2]])

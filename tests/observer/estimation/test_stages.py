@@ -543,3 +543,22 @@ def test_a_held_voltage_passes_more_noise_than_its_band_limited_reconstruction(w
     assert gain_early == pytest.approx(gain_hold, rel=0.02)
     # Replay is exact: the same window gives the same gain.
     assert averaged_noise(hold, fit_hold.theta) == gain_hold
+
+
+def test_an_exact_fit_reports_an_infinite_std_not_nan():
+    """A window whose current carries no noise at all fits exactly (rss ~1e-24): the bound is
+    infinite on both sides of the specification test, which read model error from inf - inf
+    and reported the std as NaN (with a RuntimeWarning)."""
+    import warnings
+
+    from bench.common import p12_window
+    from observer.estimation import estimate_field
+    from observer.estimation.motor import P12
+    from observer.simulation.simulate import NoiseLevels
+
+    w = p12_window(2001, noise=NoiseLevels(ia=NoiseLevels.relative(P12, 0.002).ia))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        est = estimate_field(w.vf, w.i_f, w.dt, rng=w.seed)
+    assert est.resistance_ohm == pytest.approx(P12.field_resistance_ohm, rel=1e-9)
+    assert not any(np.isnan(v) for v in est.std.values()), est.std
