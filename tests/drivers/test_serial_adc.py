@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -170,10 +172,18 @@ def test_registered_and_built_from_config(tmp_path):
 
 def test_end_to_end_estimates_within_tolerance(fake_serial):
     port = fake_serial("--speedup", "2", "--seed", "5")
+    # Read until 5.4 s have arrived without a gap. A stall of this process (numba compiling
+    # a kernel on first use in a fresh environment holds the GIL for seconds) fills the pty,
+    # and the fake drive, like a UART, then sends frames into the void: a gap, not an error.
+    blocks: list = []
     with _source(port) as src:
-        blocks = collect(src, int(5.4 * RATE), timeout=20)
+        deadline = time.monotonic() + 60.0
+        while True:
+            blocks += collect(src, int(0.5 * RATE), timeout=20)
+            rec = to_recording(blocks, RATE)
+            if rec.n_samples >= 5.4 * RATE or time.monotonic() > deadline:
+                break
         health = src.health()
-    rec = to_recording(blocks, RATE)
     assert rec.n_samples >= 5.2 * RATE
     assert health["errors"] == 0
     est = estimate_recording(rec)
