@@ -51,8 +51,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from observer.diagnosis.results import ChainFinding
-from observer.estimation.intersample import current_settling, find_switching, pwm_level_changes
-from observer.estimation.problem import PWM_CHANGES
+from observer.estimation.intersample import (
+    PWM_CHANGES,
+    current_settling,
+    find_switching,
+    pwm_level_changes,
+)
 
 #: Line content in the top eighth-band below Nyquist at least this share of the one below
 #: it: the spectrum does not fall towards Nyquist (a filter of order n at fs/4 gives about

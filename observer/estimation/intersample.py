@@ -722,6 +722,10 @@ HALF_SAMPLE_MIRROR = 512
 #: sampled at its output levels: a PWM chopper's terminals without an anti-aliasing filter.
 PWM_LEVEL_SHARE = 0.9
 PWM_LEVEL_TOLERANCE = 0.05
+#: ... and that changes level in this share of the intervals or more is a carrier sampled
+#: bare (:func:`pwm_level_changes`); a 2 kHz carrier sampled at 5-10 kHz changes level in
+#: 20-40 % of them.
+PWM_CHANGES = 0.02
 
 
 def pwm_level_changes(v: np.ndarray) -> float:

@@ -22,13 +22,16 @@ import numpy as np
 from observer.estimation import intersample_kernels as ik
 from observer.estimation.frontend import FrontEnd, apply_relative, edge_samples
 from observer.estimation.intersample import (
+    PWM_CHANGES,
     InputModel,
     Segments,
     Switching,
     alias_bias,
     alias_factor,
+    averaged_moments,
     build_input,
     find_switching,
+    hold_moments,
     pwm_level_changes,
     rail_samples,
     settle_current,
@@ -262,7 +265,12 @@ class WindingProblem:
         return d
 
     def input_moments(self, theta: np.ndarray, dv: np.ndarray) -> np.ndarray:
-        """The moments' change of ``dv`` (V, per sample) added to the voltage, at ``theta``."""
+        """The moments' change of ``dv`` (V, per sample) added to the voltage, at ``theta``,
+        read through the problem's own intersample model (held, averaged or band-limited)."""
+        if self.inp.model == "hold":
+            return hold_moments(dv)
+        if self.inp.model == "averaged":
+            return averaged_moments(dv)
         return smooth_moments(dv, self.inp.segments, self.unpack(theta)[3])
 
     def offset_column(self, theta: np.ndarray, where: slice = slice(None)) -> np.ndarray:
@@ -337,12 +345,6 @@ def coverage_note(share: float, circuit: str) -> str:
         f"where the current has settled, too few to describe the {circuit}: sample faster, "
         "or filter the voltage channel like the current one"
     )
-
-
-#: A voltage at a PWM converter's levels that changes level in this share of the intervals
-#: or more is a carrier sampled bare (:func:`~observer.estimation.intersample.pwm_level_changes`);
-#: a 2 kHz carrier sampled at 5-10 kHz changes level in 20-40 % of them.
-PWM_CHANGES = 0.02
 
 
 def pwm_note(voltage: np.ndarray, circuit: str) -> str:

@@ -24,12 +24,7 @@ import numpy as np
 
 from observer.estimation import intersample_kernels as ik
 from observer.estimation.frontend import unknown_mismatch
-from observer.estimation.intersample import (
-    averaged_moments,
-    hold_moments,
-    mains_ripple_share,
-    smooth_moments,
-)
+from observer.estimation.intersample import mains_ripple_share
 from observer.estimation.polish import jacobian, levenberg_marquardt
 from observer.estimation.problem import WindingProblem
 from observer.estimation.pso import CostFunction, ParticleSwarm, PSOResult
@@ -288,7 +283,7 @@ def hold_or_smooth(
     # held sample passes all of it, the band-limited reconstruction averages
     # neighbours and passes less. That share of smooth's lead is noise, not a
     # better model.
-    noise_var = min(_input_noise(hold, fit_hold), _input_noise(smooth, fit_smooth))
+    noise_var = min(_input_noise(hold, fit_hold.point), _input_noise(smooth, fit_smooth.point))
     if noise_var > 0.0:
         rss_hold -= noise_var * (
             averaged_noise(hold, fit_hold.theta) - averaged_noise(smooth, fit_smooth.theta)
@@ -298,12 +293,10 @@ def hold_or_smooth(
     return hold, fit_hold
 
 
-def _input_noise(problem: WindingProblem, fit: PolishedFit) -> float:
+def _input_noise(problem: WindingProblem, point: WindingPoint) -> float:
     """The white voltage-noise variance (V^2) the fit's residual shows (0: none)."""
-    a_, c0, _, _ = ik.moment_coefficients(
-        fit.point.resistance_ohm, fit.point.inductance_h, problem.dt
-    )
-    return input_noise_variance(fit.point.residual, a_, c0)
+    a_, c0, _, _ = ik.moment_coefficients(point.resistance_ohm, point.inductance_h, problem.dt)
+    return input_noise_variance(point.residual, a_, c0)
 
 
 def averaged_noise(problem: WindingProblem, theta: np.ndarray) -> float:
@@ -315,16 +308,9 @@ def averaged_noise(problem: WindingProblem, theta: np.ndarray) -> float:
     :data:`NOISE_DRAWS` fixed draws.
     """
     rng = np.random.default_rng(0)
-    shift = problem.unpack(theta)[3]
-    changes = []
-    for _ in range(NOISE_DRAWS):
-        dv = np.asarray(rng.standard_normal(problem.voltage.shape[0]), dtype=np.float64)
-        if problem.inp.model == "hold":
-            changes.append(hold_moments(dv))
-        elif problem.inp.model == "averaged":
-            changes.append(averaged_moments(dv))
-        else:
-            changes.append(smooth_moments(dv, problem.inp.segments, shift))
+    n = problem.voltage.shape[0]
+    draws = [np.asarray(rng.standard_normal(n), dtype=np.float64) for _ in range(NOISE_DRAWS)]
+    changes = [problem.input_moments(theta, dv) for dv in draws]
     columns = problem.moment_columns(theta, changes)
     return float(np.sum(columns * columns)) / NOISE_DRAWS
 
@@ -436,8 +422,7 @@ def eiv_stage(
     27 evaluations of the swarm's cost), or where they find none there, by the
     swarm re-run in that range (600 evaluations).
     """
-    a_, c0, _, _ = ik.moment_coefficients(plain.resistance_ohm, plain.inductance_h, problem.dt)
-    noise_var = input_noise_variance(plain.residual, a_, c0)
+    noise_var = _input_noise(problem, plain)
     if not noise_var > 0.0:
         return EivCorrection(plain, noise_var, np.zeros(3))
     shifted = (
