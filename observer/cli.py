@@ -158,6 +158,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return EXIT_USAGE
     setup_logging(args.verbose)
+    # A record a library's thread emits after its stream is closed (dask.distributed's, at the
+    # exit of `replay --scheduler`) must not print "--- Logging error ---" and a traceback.
+    logging.raiseExceptions = False
     module = importlib.import_module(args._module)
     previous = _terminate_like_interrupt()
     try:
