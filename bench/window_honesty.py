@@ -64,8 +64,11 @@ def _drive(name: str):  # type: ignore[no-untyped-def]
     raise SystemExit(f"unknown drive {name!r}")
 
 
-def run_case(case: Case, duration_s: float = 30.0) -> dict[str, np.ndarray]:
-    """Errors, stds and the quality flag of every window of one recording."""
+def run_case(
+    case: Case, duration_s: float = 30.0, configured: bool = False
+) -> dict[str, np.ndarray]:
+    """Errors, stds and the quality flag of every window of one recording; ``configured``:
+    the estimator is told the chain's front ends (``[chain]``), as a user who knows them."""
     from bench.accuracy_rates import PARAMETERS
     from observer.config import QualityConfig
     from observer.estimation import estimate_armature, estimate_field
@@ -73,15 +76,22 @@ def run_case(case: Case, duration_s: float = 30.0) -> dict[str, np.ndarray]:
     from observer.simulation.converter_drive import simulate_converter
 
     motor = MOTORS[case.motor]
+    from observer.estimation.frontend import winding_front_ends
+
+    drive = _drive(case.drive)
+    chain = drive.chain.to_config() if configured else None
+    fe = {w: winding_front_ends(chain, w) for w in ("field", "armature")}
     rec, _ = simulate_converter(
-        motor, _drive(case.drive), duration_s=duration_s, sample_rate_hz=case.rate,
+        motor, drive, duration_s=duration_s, sample_rate_hz=case.rate,
         noise=0.002, seed=case.seed,
     )  # fmt: skip
     sig = {c: np.asarray(rec[c], dtype=float) for c in ("va", "ia", "vf", "if", "omega")}
     dt = 1.0 / case.rate
     kw = dict(n_particles=40, max_iterations=40, rng=0)
-    whole_f = estimate_field(sig["vf"], sig["if"], dt, **kw)
-    whole_a = estimate_armature(sig["va"], sig["ia"], sig["if"], sig["omega"], dt, **kw)
+    whole_f = estimate_field(sig["vf"], sig["if"], dt, front_ends=fe["field"], **kw)
+    whole_a = estimate_armature(
+        sig["va"], sig["ia"], sig["if"], sig["omega"], dt, front_ends=fe["armature"], **kw
+    )
     truth = np.array([getattr(motor, PARAMETERS[name][2]) for name in NAMES])
     quality = QualityConfig()
     limit = np.array([*quality.limits("field").values(), *quality.limits("armature").values()])
@@ -93,11 +103,12 @@ def run_case(case: Case, duration_s: float = 30.0) -> dict[str, np.ndarray]:
         kw_w = dict(n_particles=40, max_iterations=40, rng=i, fit_shift=False)
         f = estimate_field(
             sig["vf"][s], sig["if"][s], dt, intersample=whole_f.intersample,
-            shift=whole_f.shift_samples, **kw_w,
+            shift=whole_f.shift_samples, front_ends=fe["field"], **kw_w,
         )  # fmt: skip
         a = estimate_armature(
             sig["va"][s], sig["ia"][s], sig["if"][s], sig["omega"][s], dt,
-            intersample=whole_a.intersample, shift=whole_a.shift_samples, **kw_w,
+            intersample=whole_a.intersample, shift=whole_a.shift_samples,
+            front_ends=fe["armature"], **kw_w,
         )  # fmt: skip
         est = np.array([f.resistance_ohm, f.inductance_h, a.resistance_ohm, a.inductance_h,
                         a.emf_constant_h])  # fmt: skip
@@ -142,6 +153,10 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     parser.add_argument("--seeds", type=int, default=3, help="recordings per case")
     parser.add_argument("--duration", type=float, default=30.0, help="recording length (s)")
+    parser.add_argument(
+        "--configured", action="store_true",
+        help="tell the estimator the chain's front ends (as [chain] would); default: untold",
+    )  # fmt: skip
     parser.add_argument("--out", help="also write the table to this Markdown file")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
@@ -162,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         results = []
         for seed in range(args.seeds):
             bar.set_description(f"{motor} {rate} Hz {drive} seed {seed}")
-            results.append(run_case(Case(motor, rate, drive, seed), args.duration))
+            results.append(run_case(Case(motor, rate, drive, seed), args.duration, args.configured))
             bar.update()
         summary = summarise(results)
         cells = [

@@ -425,9 +425,14 @@ def settle_current(i: np.ndarray, v: np.ndarray, sw: Switching, at_least: int = 
 ALIAS_IMAGES = 64
 
 #: Aliasing factor assumed when the voltage channel's front end is not configured but its
-#: jumps settle over several samples (filtered): a 1st-order RC at fs/4, the weakest
-#: anti-aliasing filter in use (a 2nd-order Butterworth at fs/4 gives 0.02).
-UNKNOWN_FILTER_ALIAS = 0.1
+#: jumps settle over several samples (filtered): that of a 1st-order RC at fs/4, the weakest
+#: anti-aliasing filter in use (``alias_factor`` of it: 0.0567; a 2nd-order Butterworth at
+#: fs/4 gives 0.0141).
+UNKNOWN_FILTER_ALIAS = 0.0567
+
+#: An unfiltered jump's factor: the sample misses a uniformly placed share of the interval,
+#: whose standard deviation is ``sqrt(1/12)``.
+BARE_JUMP_ALIAS = math.sqrt(1.0 / 12.0)
 
 #: Jumps are locked to the samples when they recur within this of a whole number of samples.
 LOCKED_TOLERANCE = 0.05
@@ -436,38 +441,45 @@ LOCKED_TOLERANCE = 0.05
 def alias_factor(
     response_at: Callable[[np.ndarray], np.ndarray] | None, sample_rate_hz: float
 ) -> float:
-    """Largest error of a window's sample mean per volt-sample of a jump, as a share.
+    """One-sigma error of a window's sample mean per volt-sample of a jump, as a share.
 
     A jump of ``J`` volts at a fraction ``theta`` of an interval adds to the
     mean of the samples, against the mean of the voltage, ``J*dt*sum_m
     H(m*fs) exp(2j*pi*m*theta) / (2j*pi*m)`` summed over the images ``m != 0``
     of the sample rate (the rectangle rule's error for a step seen through the
-    front end ``H``); at most ``J*dt*sum_m |H(m*fs)|/(pi*m)``, and never more
-    than ``J*dt/2`` (an unfiltered jump: the sample misses up to half an
-    interval). ``response_at(f_hz)`` is the voltage channel's complex
-    response; ``None``: not configured, :data:`UNKNOWN_FILTER_ALIAS`.
+    front end ``H``): a pair ``+-m`` gives ``|H(m*fs)| sin(2*pi*m*theta + phi_m) / (pi*m)``.
+    Nothing places the converter's firings at a particular point between samples, so
+    ``theta`` is uniform and the error's standard deviation is
+    ``J*dt*sqrt(sum_m |H(m*fs)|^2 / (2*pi^2*m^2))``; an unfiltered jump gives
+    ``J*dt*sqrt(1/12)`` (:data:`BARE_JUMP_ALIAS`). The worst place errs by at most
+    ``J*dt*sum_m |H(m*fs)| / (pi*m)``: 1.4 times the standard deviation behind a
+    Butterworth at fs/4, 1.8 times behind an RC at fs/4, so a std built on this stays
+    within the 2.5 std a quality gate allows wherever the firings fall.
+    ``response_at(f_hz)`` is the voltage channel's complex response; ``None``: not
+    configured, :data:`UNKNOWN_FILTER_ALIAS`.
     """
     if response_at is None:
         return UNKNOWN_FILTER_ALIAS
     m = np.arange(1, ALIAS_IMAGES + 1, dtype=float)
     h = np.abs(response_at(m * sample_rate_hz))
-    return float(min(0.5, np.sum(h / (np.pi * m))))
+    return float(min(BARE_JUMP_ALIAS, np.sqrt(np.sum(np.square(h / m)) / (2.0 * np.pi**2))))
 
 
 def alias_bias_bound(v: np.ndarray, transitions: np.ndarray, factor: float) -> float:
-    """Bound (V) on the error of the window's mean voltage that sampled jumps leave
-    (:func:`alias_bias`'s bound alone)."""
+    """One-sigma size (V) of the error of the window's mean voltage that sampled jumps leave
+    (:func:`alias_bias`'s size alone)."""
     return alias_bias(v, transitions, factor)[0]
 
 
 def alias_bias(v: np.ndarray, transitions: np.ndarray, factor: float) -> tuple[float, bool]:
-    """Bound (V) on the error of the window's mean voltage that sampled jumps leave, and
-    whether the jumps are locked to the samples.
+    """One-sigma size (V) of the error of the window's mean voltage that sampled jumps
+    leave, and whether the jumps are locked to the samples.
 
     ``transitions`` marks the intervals of ``v`` in a transition
     (:attr:`Switching.transition_mask`). Each run of them (a jump and its settling) carries the
     jump ``J`` from the sample before it to the sample after it, and errs the
-    sample mean by up to ``factor*|J|/n`` (:func:`alias_factor`). Jumps that
+    sample mean by ``factor*|J|/n`` (one sigma over its place between samples,
+    :func:`alias_factor`). Jumps that
     keep their place between samples (a steady bridge whose mains period is
     a whole number of sample periods, as a drive synchronised to its mains
     has: the runs start a constant number of samples apart) err alike and add
@@ -475,7 +487,7 @@ def alias_bias(v: np.ndarray, transitions: np.ndarray, factor: float) -> tuple[f
     quadrature. A voltage without transitions: ``(0.0, False)``.
 
     Locked jumps err alike in every window of the same firing angle too: the
-    bound is then of a bias the windows share, which averaging them does not
+    error is then a bias the windows share, which averaging them does not
     shrink (on a single-phase field bridge at 2 kHz on 50 Hz mains the window
     fits of ``Rf`` are +0.26 % off, the samples' mean of ``vf`` as much above the
     voltage's; wandering jumps, at 60 Hz, leave +0.001 %).
@@ -882,7 +894,7 @@ def choose_model(
     filtered jump still errs the samples' mean by the part of it the filter
     lets alias (up to 0.4 % of a steady field bridge's voltage behind a
     2nd-order filter at fs/4, when the firing instants keep their place
-    between samples); the uncertainty carries that bound
+    between samples); the uncertainty carries that error's size
     (:func:`alias_bias_bound`) rather than segmenting, which leaves the
     field's resistance to short segments that pin it worse (-1.6 % at 0.6 %
     std against -0.4 % on the same windows), for the field and the armature alike.

@@ -65,7 +65,7 @@ class WindingProblem:
     fit_shift : bool
         Whether the relative delay is a parameter (``smooth`` and ``switched`` models).
     alias_v : tuple of float
-        Per piece of the window (:data:`ALIAS_PIECES` equal ones), a bound on the error of the
+        Per piece of the window (:data:`ALIAS_PIECES` equal ones), the one-sigma error of the
         piece's mean voltage that jumps seen through the front end leave in the samples (V;
         :func:`~observer.estimation.intersample.alias_bias_bound`). It changes where the
         converter's firing angle does, so each piece errs on its own.
