@@ -65,10 +65,11 @@ def _drive(name: str):  # type: ignore[no-untyped-def]
 
 
 def run_case(
-    case: Case, duration_s: float = 30.0, configured: bool = False
+    case: Case, duration_s: float = 30.0, configured: bool = False, va_offset: float = 0.0
 ) -> dict[str, np.ndarray]:
     """Errors, stds and the quality flag of every window of one recording; ``configured``:
-    the estimator is told the chain's front ends (``[chain]``), as a user who knows them."""
+    the estimator is told the chain's front ends (``[chain]``), as a user who knows them;
+    ``va_offset``: the armature voltage sensor's offset (V), which no estimator is told."""
     from bench.accuracy_rates import PARAMETERS
     from observer.config import QualityConfig
     from observer.estimation import estimate_armature, estimate_field
@@ -79,6 +80,8 @@ def run_case(
     from observer.estimation.frontend import winding_front_ends
 
     drive = _drive(case.drive)
+    if va_offset:
+        drive = drive.replace(chain=drive.chain.with_channel("va", offset=va_offset))
     chain = drive.chain.to_config() if configured else None
     fe = {w: winding_front_ends(chain, w) for w in ("field", "armature")}
     rec, _ = simulate_converter(
@@ -157,6 +160,10 @@ def main(argv: list[str] | None = None) -> int:
         "--configured", action="store_true",
         help="tell the estimator the chain's front ends (as [chain] would); default: untold",
     )  # fmt: skip
+    parser.add_argument(
+        "--va-offset", type=float, default=0.0,
+        help="armature voltage sensor offset (V) in the recordings, not told to the estimator",
+    )  # fmt: skip
     parser.add_argument("--out", help="also write the table to this Markdown file")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
@@ -177,7 +184,11 @@ def main(argv: list[str] | None = None) -> int:
         results = []
         for seed in range(args.seeds):
             bar.set_description(f"{motor} {rate} Hz {drive} seed {seed}")
-            results.append(run_case(Case(motor, rate, drive, seed), args.duration, args.configured))
+            results.append(
+                run_case(
+                    Case(motor, rate, drive, seed), args.duration, args.configured, args.va_offset
+                )
+            )
             bar.update()
         summary = summarise(results)
         cells = [
