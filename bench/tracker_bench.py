@@ -210,11 +210,20 @@ def _drive(preset: str) -> dict[str, Any]:
     return {"drive": PRESETS[preset], "drive_name": preset}
 
 
-def _step_run(args: tuple[str, float, int, float, float, str]) -> dict[str, Any]:
-    target, relative, seed, at_s, duration_s, preset = args
+def _told(preset: str, told: bool) -> Config:
+    """The default configuration, with the preset's measurement chain in ``[chain]`` if
+    ``told`` (as a user who configured the front ends)."""
+    drive = PRESETS[preset]
+    if not told or drive is None:
+        return Config()
+    return replace(Config(), chain=drive.chain.to_config())
+
+
+def _step_run(args: tuple[str, float, int, float, float, str, bool]) -> dict[str, Any]:
+    target, relative, seed, at_s, duration_s, preset, told = args
     rec = simulate(P12, duration_s=duration_s, seed=1000 + seed,
                    changes=(Change(target, relative, at_s),), **_drive(preset))  # fmt: skip
-    estimates = observe(rec, Config())
+    estimates = observe(rec, _told(preset, told))
     events = [ev for e in estimates for ev in e.get("events", [])]
     wanted = "tachometer" if target == "tach" else "change"
     hits = [
@@ -244,6 +253,7 @@ def _step_run(args: tuple[str, float, int, float, float, str]) -> dict[str, Any]
         "relative": relative,
         "seed": seed,
         "preset": preset,
+        "configured": told,
         "at_s": at_s,
         "detected": first is not None,
         "delay_s": None if first is None else first["t_ns"] / 1e9 - at_s,
@@ -260,13 +270,14 @@ def _step_run(args: tuple[str, float, int, float, float, str]) -> dict[str, Any]
 
 
 def steps(
-    seeds: int, workers: int, duration_s: float = 30.0, preset: str = "ideal"
+    seeds: int, workers: int, duration_s: float = 30.0, preset: str = "ideal", told: bool = False
 ) -> list[dict[str, Any]]:
-    """Run every step of :data:`STEPS` over ``seeds`` seeds (step at a random time 12-20 s)."""
+    """Run every step of :data:`STEPS` over ``seeds`` seeds (step at a random time 12-20 s);
+    ``told``: the observer is configured with the drive's measurement chain."""
     _drive(preset)  # an unknown preset fails before the runs
     rng = np.random.default_rng(11)
     jobs = [
-        (target, relative, seed, float(rng.uniform(12.0, 20.0)), duration_s, preset)
+        (target, relative, seed, float(rng.uniform(12.0, 20.0)), duration_s, preset, told)
         for target, relative in STEPS
         for seed in range(seeds)
     ]
@@ -311,23 +322,25 @@ def _identified_cell(hit: Sequence[dict[str, Any]]) -> str:
 # ---------------------------------------------------------------- false alarms
 
 
-def _clean_run(args: tuple[int, float, str]) -> dict[str, Any]:
-    seed, duration_s, preset = args
+def _clean_run(args: tuple[int, float, str, bool]) -> dict[str, Any]:
+    seed, duration_s, preset, told = args
     rec = simulate(P12, duration_s=duration_s, seed=5000 + seed, **_drive(preset))
     started = time.perf_counter()
-    estimates = observe(rec, Config())
+    estimates = observe(rec, _told(preset, told))
     elapsed = time.perf_counter() - started
     events = [ev["message"] for e in estimates for ev in e.get("events", [])]
     return {"seed": seed, "duration_s": duration_s, "windows": len(estimates),
-            "events": events, "replay_s": elapsed, "preset": preset}  # fmt: skip
+            "events": events, "replay_s": elapsed, "preset": preset,
+            "configured": told}  # fmt: skip
 
 
 def false_alarms(
-    hours: float, piece_s: float, workers: int, preset: str = "ideal"
+    hours: float, piece_s: float, workers: int, preset: str = "ideal", told: bool = False
 ) -> list[dict[str, Any]]:
     _drive(preset)
     pieces = max(1, math.ceil(hours * 3600.0 / piece_s))
-    return _map(_clean_run, [(seed, piece_s, preset) for seed in range(pieces)], workers)
+    jobs = [(seed, piece_s, preset, told) for seed in range(pieces)]
+    return _map(_clean_run, jobs, workers)
 
 
 def false_alarm_line(runs: Sequence[dict[str, Any]]) -> str:
@@ -337,7 +350,8 @@ def false_alarm_line(runs: Sequence[dict[str, Any]]) -> str:
     replay = sum(r["replay_s"] for r in runs)
     return (
         f"{len(events)} events (false alarms) in {total_s / 3600:.2f} h of clean P-12 "
-        f"recordings ({runs[0].get('preset', 'ideal')} drive), "
+        f"recordings ({runs[0].get('preset', 'ideal')} drive"
+        f"{', chain configured' if runs[0].get('configured') else ''}), "
         f"{len(events) / (total_s / 3600):.1f} per hour"
         f" ({len(runs)} pieces of {runs[0]['duration_s']:g} s, {windows} windows; "
         f"replay {total_s / replay:.1f}x real time per worker)"
@@ -384,12 +398,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     st.add_argument("--duration", type=float, default=30.0)
     st.add_argument("--preset", default="ideal", choices=sorted(PRESETS),
                     help="drive simulated (default: %(default)s)")  # fmt: skip
+    st.add_argument("--configured", action="store_true",
+                    help="configure [chain] with the drive's measurement chain")  # fmt: skip
     fa = sub.add_parser("false-alarms", help="events on clean recordings")
     fa.add_argument("--hours", type=float, default=1.0)
     fa.add_argument("--piece-s", type=float, default=600.0)
     fa.add_argument("--workers", type=int, default=2)
     fa.add_argument("--preset", default="ideal", choices=sorted(PRESETS),
                     help="drive simulated (default: %(default)s)")  # fmt: skip
+    fa.add_argument("--configured", action="store_true",
+                    help="configure [chain] with the drive's measurement chain")  # fmt: skip
     args = parser.parse_args(argv)
 
     if args.command == "accuracy":
@@ -416,11 +434,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                   f"{res.events or 'none'}", file=sys.stderr)  # fmt: skip
         print(accuracy_table(results))
     elif args.command == "steps":
-        runs = steps(args.seeds, args.workers, args.duration, args.preset)
+        runs = steps(args.seeds, args.workers, args.duration, args.preset, args.configured)
         print(json.dumps(runs), file=sys.stderr)
         print(steps_table(runs))
     else:
-        runs = false_alarms(args.hours, args.piece_s, args.workers, args.preset)
+        runs = false_alarms(args.hours, args.piece_s, args.workers, args.preset, args.configured)
         print(json.dumps(runs), file=sys.stderr)
         print(false_alarm_line(runs))
     return 0

@@ -178,6 +178,7 @@ def estimate_armature(
         shift_std=std.get("shift", 0.0),
         coverage=coverage,
         front_end_std=std.get("front_end_L", 0.0),
+        shared_std={p: std[f"shared_{p}"] for p in ("R", "L", "K") if f"shared_{p}" in std},
         describes_window=not note,
         note=note,
     )

@@ -585,8 +585,9 @@ def std_stage(
     For a measured voltage the result also holds ``shared_R``, ``shared_L``
     (and ``shared_K``): the part of the std that every window at the same
     operating point shares, a bias averaging windows does not shrink -- the
-    sensor's offset, and the alias of jumps locked to the samples (the
-    ``steady`` term of the pieces whose jumps are locked).
+    sensor's offset, the alias of jumps locked to the samples (the
+    ``steady`` term of the pieces whose jumps are locked), and an untold
+    mismatch of the channels' front ends.
     """
     theta = fit.theta
     tau_samples = math.exp(theta[1] - theta[0]) / problem.dt
@@ -636,6 +637,8 @@ def std_stage(
             shared[:k] = np.hypot(shared[:k], shared_alias)
         if problem.untold_front_end:
             mismatch[:k] = per_volt[:, -1]
+            # A mismatch of the channels is the chain's, the same in every window.
+            shared[:k] = np.hypot(shared[:k], mismatch[:k])
         offset[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
         shared[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
         mismatch[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)

@@ -687,7 +687,9 @@ class MotorTracker:
         down until the state lagged the heating by twice the 0.1 % tolerance.)
         """
         alone = ev.rel_std**2
-        return self.overlap * alone, alone
+        shared = ev.shared_rel_std if math.isfinite(ev.shared_rel_std) else 0.0
+        shared_var = min(max(shared, 0.0), ev.rel_std) ** 2
+        return self.overlap * (alone - shared_var) + shared_var, alone
 
     def _outlier(self, name: str, nu: float, variance: float) -> bool:
         """Beyond the gate of a window alone, and beyond half the smallest change.
