@@ -562,3 +562,30 @@ def test_an_exact_fit_reports_an_infinite_std_not_nan():
         est = estimate_field(w.vf, w.i_f, w.dt, rng=w.seed)
     assert est.resistance_ohm == pytest.approx(P12.field_resistance_ohm, rel=1e-9)
     assert not any(np.isnan(v) for v in est.std.values()), est.std
+
+
+def test_the_armature_reports_the_part_of_its_std_every_window_shares(window):
+    """A measured armature voltage (the realistic drive's filtered terminals) has an offset
+    no window resolves: the armature's estimate, like the field's, says which part of its
+    std that is (the tracker enters it once, not once per overlapping window); a held
+    voltage, the drive's own reference, has none."""
+    from observer.estimation.motor import MOTORS
+    from observer.simulation.converter import PRESETS
+    from observer.simulation.simulate import simulate
+
+    fs = 2000.0
+    rec = simulate(MOTORS["p12"], duration_s=2.0, sample_rate_hz=fs, seed=2,
+                   drive=PRESETS["realistic"])  # fmt: skip
+    part = slice(int(0.5 * fs), int(2.0 * fs))
+    est = estimate_armature(
+        rec["va"][part], rec["ia"][part], rec["if"][part], rec["omega"][part], 1 / fs,
+        rng=0, n_particles=24, max_iterations=20,
+    )  # fmt: skip
+    assert est.intersample != "hold"
+    for p in ("R", "K"):
+        assert 0 < est.relative_shared_std(p) <= est.relative_std(p)
+    held = estimate_armature(
+        window["va"], window["ia"], window["if"], window["omega"], window["dt"],
+        rng=0, n_particles=24, max_iterations=20, intersample="hold",
+    )  # fmt: skip
+    assert held.shared_std == {}
