@@ -85,6 +85,13 @@ class Evidence:
     rel_std: float
     shared_rel_std: float = 0.0
 
+    @property
+    def shared_var(self) -> float:
+        """The shared part's relative variance: ``shared_rel_std`` squared, within
+        ``[0, rel_std^2]`` (0 where it is not finite)."""
+        shared = self.shared_rel_std if math.isfinite(self.shared_rel_std) else 0.0
+        return min(max(shared, 0.0), self.rel_std) ** 2
+
 
 @dataclass
 class Gaussian:
@@ -598,8 +605,7 @@ class MotorTracker:
         for name, track in self.tracks.items():
             ev = evidence.get(name)
             if status[name] == "ok" and ev is not None:
-                shared = ev.shared_rel_std if math.isfinite(ev.shared_rel_std) else 0.0
-                track.shared_var = min(max(shared, 0.0), ev.rel_std) ** 2
+                track.shared_var = ev.shared_var
             st = track.state
             value = None if st is None else math.exp(float(st.x[0]))
             rel = self.rel_std(name)
@@ -687,9 +693,7 @@ class MotorTracker:
         down until the state lagged the heating by twice the 0.1 % tolerance.)
         """
         alone = ev.rel_std**2
-        shared = ev.shared_rel_std if math.isfinite(ev.shared_rel_std) else 0.0
-        shared_var = min(max(shared, 0.0), ev.rel_std) ** 2
-        return self.overlap * (alone - shared_var) + shared_var, alone
+        return self.overlap * (alone - ev.shared_var) + ev.shared_var, alone
 
     def _outlier(self, name: str, nu: float, variance: float) -> bool:
         """Beyond the gate of a window alone, and beyond half the smallest change.
