@@ -424,12 +424,6 @@ def settle_current(i: np.ndarray, v: np.ndarray, sw: Switching, at_least: int = 
 #: far below the 1/(pi*m) it is weighed with long before).
 ALIAS_IMAGES = 64
 
-#: Aliasing factor assumed when the voltage channel's front end is not configured but its
-#: jumps settle over several samples (filtered): that of a 1st-order RC at fs/4, the weakest
-#: anti-aliasing filter in use (``alias_factor`` of it: 0.0567; a 2nd-order Butterworth at
-#: fs/4 gives 0.0141).
-UNKNOWN_FILTER_ALIAS = 0.0567
-
 #: An unfiltered jump's factor: the sample misses a uniformly placed share of the interval,
 #: whose standard deviation is ``sqrt(1/12)``.
 BARE_JUMP_ALIAS = math.sqrt(1.0 / 12.0)
@@ -463,6 +457,13 @@ def alias_factor(
     m = np.arange(1, ALIAS_IMAGES + 1, dtype=float)
     h = np.abs(response_at(m * sample_rate_hz))
     return float(min(BARE_JUMP_ALIAS, np.sqrt(np.sum(np.square(h / m)) / (2.0 * np.pi**2))))
+
+
+#: Aliasing factor assumed when the voltage channel's front end is not configured but its
+#: jumps settle over several samples (filtered): that of a 1st-order RC at fs/4, the weakest
+#: anti-aliasing filter in use (0.0569 at any rate; a 2nd-order Butterworth at fs/4 gives
+#: 0.0141).
+UNKNOWN_FILTER_ALIAS = alias_factor(lambda f: 1.0 / (1.0 + 1j * f / 500.0), 2000.0)
 
 
 def alias_bias_bound(v: np.ndarray, transitions: np.ndarray, factor: float) -> float:

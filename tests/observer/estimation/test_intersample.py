@@ -9,6 +9,8 @@ import pytest
 
 from observer.estimation.frontend import FrontEnd, apply_relative, parse_front_end
 from observer.estimation.intersample import (
+    BARE_JUMP_ALIAS,
+    UNKNOWN_FILTER_ALIAS,
     Segments,
     alias_bias_bound,
     alias_factor,
@@ -114,6 +116,20 @@ def test_a_filtered_bridge_voltage_has_no_clean_jump():
     assert sw.transition_share >= sw.jumps.mean() > 0.005
     # Filtered: read smooth, the jumps' aliasing carried by the uncertainty (next test).
     assert choose_model(field)[0] == "smooth"
+
+
+def test_the_untold_alias_factor_is_that_of_an_rc_at_a_quarter_of_the_rate():
+    """Not configured, the weakest filter in use is assumed: the constant is its factor (at
+    any rate: the cutoff scales with it); an unfiltered jump is a uniform place's std."""
+    for fs in (2000.0, 5000.0):
+        rc = parse_front_end(f"rc1@{fs / 4:g}")
+        assert alias_factor(lambda f, fe=rc, fs=fs: fe.response(f, fs), fs) == pytest.approx(
+            UNKNOWN_FILTER_ALIAS, rel=1e-12
+        )
+    assert alias_factor(None, FS) == UNKNOWN_FILTER_ALIAS
+    # (the images are summed to the 64th: 0.5 % short of the limit, never above it)
+    bare = alias_factor(lambda f: np.ones_like(f), FS)
+    assert bare == pytest.approx(BARE_JUMP_ALIAS, rel=0.01) and bare <= BARE_JUMP_ALIAS
 
 
 @pytest.mark.parametrize("alpha_deg", [35.0, 50.0, 65.0, 80.0])
