@@ -56,6 +56,22 @@ def _drive(name: str):  # type: ignore[no-untyped-def]
         for ch in ("va", "vf"):
             chain = chain.with_channel(ch, filter="rc", order=1)
         return drive_spec("thyristor").replace(chain=chain)
+    # Front ends the estimator was never tuned on (issue 10 section 3: other chains), one
+    # kind on both windings' current or voltage channels, the rest as ``realistic``.
+    others = {
+        "rc1-currents": ("currents", dict(filter="rc", order=1)),
+        "bessel4-currents": ("currents", dict(filter="bessel", order=4)),
+        "butter4-fs3-currents": ("currents", dict(filter="butter", order=4, cutoff_per_fs=1 / 3)),
+        "bessel2-voltages": ("voltages", dict(filter="bessel", order=2)),
+        "fs8-voltages": ("voltages", dict(cutoff_per_fs=0.125)),
+        "rc1-fs8-voltages": ("voltages", dict(filter="rc", order=1, cutoff_per_fs=0.125)),
+    }
+    if name in others:
+        which, change = others[name]
+        chain = MeasurementChain.uniform(REALISTIC_CHANNEL)
+        for ch in ("ia", "if") if which == "currents" else ("va", "vf"):
+            chain = chain.with_channel(ch, **change)
+        return drive_spec("thyristor").replace(chain=chain)
     if name == "bare-voltages":
         chain = MeasurementChain.uniform(REALISTIC_CHANNEL)
         for ch in ("va", "vf"):
@@ -152,7 +168,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rates", default="2000,5000,10000", help="sample rates (Hz)")
     parser.add_argument(
         "--drives", default="realistic,no-filter,chopper,rc1-voltages,bare-voltages",
-        help="drives: realistic, no-filter, chopper, rc1-voltages, bare-voltages",
+        help="drives: realistic, no-filter, chopper, rc1-voltages, bare-voltages, and front "
+        "ends not tuned on: rc1-currents, bessel4-currents, butter4-fs3-currents, "
+        "bessel2-voltages, fs8-voltages, rc1-fs8-voltages",
     )  # fmt: skip
     parser.add_argument("--seeds", type=int, default=3, help="recordings per case")
     parser.add_argument("--duration", type=float, default=30.0, help="recording length (s)")

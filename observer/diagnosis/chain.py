@@ -26,8 +26,8 @@ Three findings come from the front end alone, whatever the motor does:
     could cause (decided in :mod:`observer.diagnosis.diagnose`).
 ``front_ends_unknown``
     The winding's front ends are not configured, and a mismatch of the voltage
-    and current channels' filters would move its inductance by more than
-    :data:`FRONT_END_SHARE` (the estimate's ``front_end_std``).
+    and current channels' filters that the samples leave room for would move its
+    inductance by more than :data:`FRONT_END_SHARE` (the estimate's ``front_end_std``).
 ``pwm_sampled_bare``
     The voltage's samples sit at a PWM converter's levels and change level in
     many intervals: a chopper's terminals sampled without a filter, whose
@@ -263,10 +263,10 @@ def front_end_finding(
     return ChainFinding(
         voltage,
         "front_ends_unknown",
-        f"measurement chain: the {voltage} and {current} front ends are not configured; were "
-        f"their anti-aliasing filters of different kinds (a first-order beside a second-order at "
-        f"fs/4), {name} would be off by {100 * share:.1f} %: the relative gain at the "
-        "converter's ripple scales the ripple current, and the samples alone cannot tell",
+        f"measurement chain: the {voltage} and {current} front ends are not configured, and the "
+        f"samples leave room for anti-aliasing filters of different kinds that would put {name} "
+        f"off by {100 * share:.1f} %: the relative gain at the converter's ripple scales the "
+        "ripple current, and the samples tell it only in part",
         FRONT_END_ADVICE.format(ch=voltage, cur=current),
     )
 

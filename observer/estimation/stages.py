@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from observer.estimation import intersample_kernels as ik
-from observer.estimation.frontend import unknown_mismatch
+from observer.estimation.frontend import MISMATCH_SHAPES, MISMATCH_UNDERSEEN, unknown_mismatch
 from observer.estimation.intersample import mains_ripple_share
 from observer.estimation.polish import jacobian, levenberg_marquardt
 from observer.estimation.problem import WindingProblem
@@ -557,6 +557,62 @@ def _combined(*terms: float) -> float:
     return float(np.linalg.norm(terms))
 
 
+#: Step (sample periods) of the voltage's delay for the residual's sensitivity to it.
+SHIFT_STEP = 1e-2
+
+
+def _untold_mismatch(
+    problem: WindingProblem,
+    fit: PolishedFit,
+    columns: np.ndarray,
+    tau_samples: float,
+    k: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """What an untold mismatch of the channels' front ends leaves in ``R, L[, K]``: the
+    whole one-sigma term and the part of it every window shares.
+
+    ``columns`` are the residual's changes were the channels each pair of
+    :data:`~observer.estimation.frontend.MISMATCH_SHAPES` (size 1), and, where
+    the delay is held, per sample of delay. Each pair's size is a nuisance
+    parameter a priori of standard deviation 1 (nobody told the front ends),
+    and the window measures it where the mismatch leaves a trace the fitted
+    ``R, L[, K]`` and delay cannot take up (its gain and phase differ across
+    the ripple's harmonics and transients, where ``R + jwL`` cannot follow):
+    a Gauss-Newton step with the column beside the Jacobian (and the delay's),
+    its sandwich std, combined with the prior. The term is the largest move a
+    measured size implies, counted :data:`~observer.estimation.frontend.MISMATCH_UNDERSEEN`
+    times (it sees only part of a real pair's), with the commonest pair's
+    posterior spread; that spread is the window's noise where the data
+    measures the size, and the chain's (shared) where it cannot.
+    """
+    residual = fit.point.residual
+    base = fit.jacobian
+    shapes = columns
+    if not problem.fit_shift:
+        base = np.column_stack([base, columns[:, -1]])
+        shapes = columns[:, :-1]
+    moves = np.abs(np.linalg.lstsq(base, shapes, rcond=None)[0][:k])
+    measured = np.zeros(k)
+    spread = np.zeros(k)
+    prior_share = 1.0
+    for j in range(shapes.shape[1]):
+        augmented = np.column_stack([base, shapes[:, j]])
+        step = np.linalg.lstsq(augmented, residual, rcond=None)[0]
+        size = -float(step[-1])
+        s = float(crlb_std(augmented, residual - augmented @ step, tau_samples)[-1])
+        if not (math.isfinite(size) and math.isfinite(s)):
+            size, s = 0.0, math.inf
+        var = 1.0 if math.isinf(s) else s * s / (1.0 + s * s)
+        mean = size * (1.0 - var)
+        measured = np.maximum(measured, MISMATCH_UNDERSEEN * abs(mean) * moves[:, j])
+        if j == 0:
+            spread = moves[:, 0] * math.sqrt(var)
+            prior_share = var
+    total = np.hypot(measured, spread)
+    common = np.hypot(measured, spread * math.sqrt(prior_share))
+    return total, common
+
+
 def std_stage(
     problem: WindingProblem,
     fit: PolishedFit,
@@ -602,12 +658,21 @@ def std_stage(
         pieces = problem.alias_pieces()
         changes = [problem.offset_moments()]
         changes += [problem.offset_moments(where) for where, _ in pieces]
+        n_direct = len(changes)
         if problem.untold_front_end:
-            # Channels whose front ends nobody told: were they the commonest mismatch,
-            # the voltage would differ by this (its gain at the ripple moves L whole).
-            changes.append(
-                problem.input_moments(theta, unknown_mismatch(problem.voltage, problem.dt))
-            )
+            # Channels whose front ends nobody told: were they one of the plausible pairs,
+            # the voltage would differ by these (their gain at the ripple moves L whole) ...
+            changes += [
+                problem.input_moments(theta, unknown_mismatch(problem.voltage, problem.dt, pair))
+                for pair in MISMATCH_SHAPES
+            ]
+            if not problem.fit_shift:
+                # ... and, where the delay is held, the voltage read later (per sample).
+                shift = problem.unpack(theta)[3]
+                lag = problem.lag_of(theta)
+                changes.append(
+                    (problem.mu(shift + SHIFT_STEP, lag) - problem.mu(shift, lag)) / SHIFT_STEP
+                )
         columns = problem.moment_columns(theta, changes)
         column = columns[:, 0]
         if problem.fits_k:
@@ -621,7 +686,7 @@ def std_stage(
         # bridge, so it does not average out over the window).
         k = 3 if problem.fits_k else 2
         # The parameters' moves per volt of each error (one solve for every column).
-        per_volt = np.abs(np.linalg.lstsq(fit.jacobian, columns, rcond=None)[0][:k])
+        per_volt = np.abs(np.linalg.lstsq(fit.jacobian, columns[:, :n_direct], rcond=None)[0][:k])
         offset[:k] = per_volt[:, 0] * OFFSET_SHARE * float(np.mean(np.abs(problem.voltage)))
         shared[:k] = offset[:k]
         if pieces:
@@ -636,9 +701,10 @@ def std_stage(
             shared_alias = per_volt[:, 0] * float(np.sqrt(np.mean(np.square(locked_v))))
             shared[:k] = np.hypot(shared[:k], shared_alias)
         if problem.untold_front_end:
-            mismatch[:k] = per_volt[:, -1]
+            total, common = _untold_mismatch(problem, fit, columns[:, n_direct:], tau_samples, k)
+            mismatch[:k] = total
             # A mismatch of the channels is the chain's, the same in every window.
-            shared[:k] = np.hypot(shared[:k], mismatch[:k])
+            shared[:k] = np.hypot(shared[:k], common)
         offset[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
         shared[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
         mismatch[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)

@@ -626,9 +626,9 @@ class SlidingWindowObserver:
         self.warnings.add(key)
         name = CIRCUIT_NAMES[circuit]["L"]
         log.warning(
-            "%s held: the %s voltage and current front ends are not configured, and "
-            "channels filtered differently would move %s by %.1f %% in this window (quality "
-            "limit %.1f %%); configure [chain] (docs/drive_chain.md)",
+            "%s held: the %s voltage and current front ends are not configured, and this "
+            "window leaves room for channels filtered differently that would move %s by "
+            "%.1f %% (quality limit %.1f %%); configure [chain] (docs/drive_chain.md)",
             name, circuit, name, 100 * share, 100 * limit,
         )  # fmt: skip
 

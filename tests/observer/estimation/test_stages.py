@@ -8,7 +8,7 @@ import pytest
 from observer.estimation import armature_search_range, estimate_armature
 from observer.estimation import intersample_kernels as ik
 from observer.estimation.armature import armature_problem
-from observer.estimation.frontend import unknown_mismatch
+from observer.estimation.frontend import MISMATCH_SHAPES, unknown_mismatch
 from observer.estimation.polish import levenberg_marquardt
 from observer.estimation.pso import ParticleSwarm
 from observer.estimation.stages import (
@@ -18,6 +18,7 @@ from observer.estimation.stages import (
     SPEC_CUTOFF,
     EivCorrection,
     SwarmSettings,
+    _untold_mismatch,
     butter2_lowpass,
     eiv_stage,
     hold_or_smooth,
@@ -110,11 +111,17 @@ def test_a_measured_voltage_adds_an_unknown_offset_and_the_model_floor(window):
     bias = np.abs(np.linalg.lstsq(fit.jacobian, column, rcond=None)[0][:3]) * volts
     r, ell, k = fit.point.resistance_ohm, fit.point.inductance_h, fit.point.emf_constant_h
     floor = MODEL_FLOOR
-    # Nobody told the channels' front ends: the moves the commonest mismatch would cause.
-    assert problem.untold_front_end
-    shape = problem.input_column(fit.theta, unknown_mismatch(problem.voltage, problem.dt))
-    moves = np.abs(np.linalg.lstsq(fit.jacobian, shape, rcond=None)[0][:3])
-    assert moves[1] > 0
+    # Nobody told the channels' front ends: the moves the plausible mismatches would cause,
+    # as far as the window measures them (here, with the delay fitted, from the Jacobian).
+    assert problem.untold_front_end and problem.fit_shift
+    shapes = np.column_stack(
+        [
+            problem.input_column(fit.theta, unknown_mismatch(problem.voltage, problem.dt, pair))
+            for pair in MISMATCH_SHAPES
+        ]
+    )
+    moves, _ = _untold_mismatch(problem, fit, shapes, tau_samples, 3)
+    assert 0 < moves[1]
     assert std["R"] == pytest.approx(
         np.linalg.norm([r * bound[0], r * bias[0], r * floor["R"], r * moves[0]])
     )
@@ -127,6 +134,52 @@ def test_a_measured_voltage_adds_an_unknown_offset_and_the_model_floor(window):
     # The offset is what Ra and K cannot be told apart from: it widens them.
     plain = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
     assert bound[0] > plain[0] and bound[2] > plain[2]
+
+
+def _converter_window(chain, rate_hz=5000.0):
+    from bench.accuracy_rates import drive_spec
+    from observer.estimation.motor import P12
+    from observer.simulation.simulate import simulate
+
+    rec = simulate(
+        P12, duration_s=2.5, sample_rate_hz=rate_hz, seed=2,
+        drive=drive_spec("thyristor").replace(chain=chain), drive_name="thyristor",
+    )  # fmt: skip
+    sig = {c: np.asarray(rec[c], dtype=float) for c in ("va", "ia", "if", "omega")}
+    n = int(rate_hz)
+    first, second = ({c: v[k * n : (k + 1) * n] for c, v in sig.items()} for k in (0, 1))
+    kw = dict(n_particles=40, max_iterations=40, rng=0)
+    learned = estimate_armature(
+        first["va"], first["ia"], first["if"], first["omega"], 1 / rate_hz, **kw
+    )
+    # As the daemon runs once it decided the chain: the delay held at what it learned.
+    est = estimate_armature(
+        second["va"], second["ia"], second["if"], second["omega"], 1 / rate_hz,
+        intersample=learned.intersample, shift=learned.shift_samples, fit_shift=False, **kw,
+    )  # fmt: skip
+    return est, P12.armature_inductance_h
+
+
+def test_an_untold_mismatch_is_what_the_window_measures_of_it():
+    """Untold front ends, converter-fed at 5 kHz: where the channels are filtered alike the
+    window says so and La keeps a std it can be published with; where the voltage's is an
+    RC beside the current's 2nd-order filter, the std covers the move La takes."""
+    from observer.simulation.chain import MeasurementChain
+    from observer.simulation.converter import REALISTIC_CHANNEL
+
+    alike = MeasurementChain.uniform(REALISTIC_CHANNEL)
+    est, truth = _converter_window(alike)
+    assert est.intersample == "smooth"
+    error = abs(est.inductance_h - truth)
+    # The commonest pair moves La by 2.7 % at 5 kHz; the window's measure of it is < 0.5 %.
+    assert est.front_end_std < 0.005 * est.inductance_h
+    assert est.std["L"] < 0.02 * est.inductance_h  # the quality limit: La is published
+    assert error < 2.5 * est.std["L"]
+    rc = alike.with_channel("va", filter="rc", order=1)
+    est, truth = _converter_window(rc)
+    error = abs(est.inductance_h - truth)
+    assert error > 0.015 * truth  # the mismatch moved La ...
+    assert error < est.std["L"] and error < est.front_end_std  # ... and its std says so
 
 
 def test_the_offset_column_is_the_residuals_change_per_volt(window):
@@ -332,8 +385,9 @@ def test_an_untold_front_end_mismatch_is_in_the_inductances_std():
     """The same mismatched drive at 5 kHz, the chain not told. The RC passes the 300 Hz
     ripple ~2.7 % weaker than the Butterworth beside it, so the ripple current reads 2.7 %
     large for its voltage and La 2.7 % small: before, at 0.25 % std (|z| 11). Untold, the
-    channels' relative gain is unknown and La's std says so; told wrongly that both
-    channels match, the std is the old one and does not cover the error."""
+    window measures the mismatch (beside the fitted delay) and La's std says so, without
+    holding La for good; told wrongly that both channels match, the std is the old one
+    and does not cover the error."""
     from observer.estimation import estimate_armature
     from observer.estimation.frontend import parse_front_end
     from observer.estimation.motor import MOTORS
@@ -354,7 +408,7 @@ def test_an_untold_front_end_mismatch_is_in_the_inductances_std():
         results[told is None] = arm.inductance_h - motor.armature_inductance_h, arm.std["L"]
     error, std = results[True]
     assert abs(error) <= 2.5 * std, results
-    assert std <= 0.05 * motor.armature_inductance_h, results  # not held for nothing
+    assert std <= 0.1 * motor.armature_inductance_h, results  # not held for nothing
     error, std = results[False]
     assert abs(error) > 3 * std, results
 
