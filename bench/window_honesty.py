@@ -93,7 +93,7 @@ def run_case(
     from observer.simulation.converter_drive import simulate_converter
 
     motor = MOTORS[case.motor]
-    from observer.estimation.frontend import winding_front_ends
+    from observer.estimation.frontend import applied_mismatch, winding_front_ends
 
     drive = _drive(case.drive)
     if va_offset:
@@ -111,6 +111,19 @@ def run_case(
     whole_a = estimate_armature(
         sig["va"], sig["ia"], sig["if"], sig["omega"], dt, front_ends=fe["armature"], **kw
     )
+    # Untold channels that differ like the commonest pair: learned and corrected for, as
+    # `dcobserver estimate` does (the daemon learns it over its first windows).
+    learned = {"field": whole_f.mismatch_size, "armature": whole_a.mismatch_size}
+    if applied_mismatch(learned["field"]):
+        whole_f = estimate_field(
+            sig["vf"], sig["if"], dt, mismatch=learned["field"],
+            shift=whole_f.mismatch_shift, **kw,
+        )  # fmt: skip
+    if applied_mismatch(learned["armature"]):
+        whole_a = estimate_armature(
+            sig["va"], sig["ia"], sig["if"], sig["omega"], dt, mismatch=learned["armature"],
+            shift=whole_a.mismatch_shift, **kw,
+        )  # fmt: skip
     truth = np.array([getattr(motor, PARAMETERS[name][2]) for name in NAMES])
     quality = QualityConfig()
     limit = np.array([*quality.limits("field").values(), *quality.limits("armature").values()])
@@ -122,12 +135,13 @@ def run_case(
         kw_w = dict(n_particles=40, max_iterations=40, rng=i, fit_shift=False)
         f = estimate_field(
             sig["vf"][s], sig["if"][s], dt, intersample=whole_f.intersample,
-            shift=whole_f.shift_samples, front_ends=fe["field"], **kw_w,
+            shift=whole_f.shift_samples, front_ends=fe["field"], mismatch=learned["field"],
+            **kw_w,
         )  # fmt: skip
         a = estimate_armature(
             sig["va"][s], sig["ia"][s], sig["if"][s], sig["omega"][s], dt,
             intersample=whole_a.intersample, shift=whole_a.shift_samples,
-            front_ends=fe["armature"], **kw_w,
+            front_ends=fe["armature"], mismatch=learned["armature"], **kw_w,
         )  # fmt: skip
         est = np.array([f.resistance_ohm, f.inductance_h, a.resistance_ohm, a.inductance_h,
                         a.emf_constant_h])  # fmt: skip

@@ -11,6 +11,8 @@ uncertainty.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from observer.estimation.frontend import FrontEnd
@@ -48,6 +50,7 @@ def armature_problem(
     fit_lag: bool = False,
     lag: float = 0.0,
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
+    mismatch: float | None = None,
 ) -> WindingProblem:
     """The armature's :class:`~observer.estimation.problem.WindingProblem` over a window."""
     va = kernel_array(va)
@@ -60,7 +63,7 @@ def armature_problem(
         va, ia, dt, model, switching=switching, emf=i_f * omega,
         emf_constant=emf_constant, fit_shift=fit_shift, shift=shift,
         fit_lag=fit_lag and model == "smooth", lag=lag if model == "smooth" else 0.0,
-        also_checked=(i_f, omega), front_ends=front_ends,
+        also_checked=(i_f, omega), front_ends=front_ends, mismatch=mismatch,
     )  # fmt: skip
 
 
@@ -91,6 +94,7 @@ def estimate_armature(
     lag: float = 0.0,
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
     settled_rms: float | None = None,
+    mismatch: float | None = None,
 ) -> CircuitEstimate:
     """Estimate ``(Ra, La, K)`` of the armature from ``va, ia`` and measured ``if, omega``.
 
@@ -111,12 +115,15 @@ def estimate_armature(
     settled_rms : float, optional
         With ``x0``: polish from ``x0`` without a swarm unless that fit's rms (A)
         exceeds this (see :func:`observer.estimation.estimate_field`).
+    mismatch : float, optional
+        The untold channels' mismatch learned (see :func:`observer.estimation.estimate_field`).
     Other parameters
         As for :func:`estimate_field`.
     """
     problem = armature_problem(
         va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=intersample,
         fit_shift=fit_shift, shift=shift, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
+        mismatch=mismatch,
     )  # fmt: skip
     n = problem.current.shape[0]
     rng_ = np.random.default_rng(rng)
@@ -148,6 +155,7 @@ def estimate_armature(
         lambda s: armature_problem(
             va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=problem.inp.model,
             fit_shift=fit_shift, shift=s, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
+            mismatch=mismatch,
         ),
         polish=polish,
     )  # fmt: skip
@@ -178,6 +186,8 @@ def estimate_armature(
         shift_std=std.get("shift", 0.0),
         coverage=coverage,
         front_end_std=std.get("front_end_L", 0.0),
+        mismatch_size=std.get("mismatch_size", math.nan),
+        mismatch_shift=std.get("mismatch_shift", math.nan),
         shared_std={p: std[f"shared_{p}"] for p in ("R", "L", "K") if f"shared_{p}" in std},
         describes_window=not note,
         note=note,

@@ -10,6 +10,8 @@ errors-in-variables compensation, and the uncertainty at the optimum.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from observer.estimation.frontend import FrontEnd
@@ -50,6 +52,7 @@ def estimate_field(
     compensate_input_noise: bool = False,
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
     settled_rms: float | None = None,
+    mismatch: float | None = None,
 ) -> CircuitEstimate:
     """Estimate ``(Rf, Lf)`` of the field winding from ``vf`` (V) and ``if`` (A).
 
@@ -83,6 +86,10 @@ def estimate_field(
         With ``x0``: polish from ``x0`` without a swarm, and run the swarm only
         if that fit's rms (A) exceeds this
         (:func:`~observer.estimation.stages.settled_stage`).
+    mismatch : float, optional
+        Front ends not told: the size of the commonest mismatch of the channels learned
+        (a whole recording's or the first windows' ``mismatch_size``); a filtered voltage
+        is corrected by it (:func:`~observer.estimation.frontend.applied_mismatch`).
     """
     vf = kernel_array(vf)
     i_f = kernel_array(i_f)
@@ -92,7 +99,7 @@ def estimate_field(
     model, switching = choose_model(vf, intersample, dt)
     problem = make_problem(
         vf, i_f, dt, model, switching=switching, fit_shift=fit_shift, shift=shift,
-        front_ends=front_ends,
+        front_ends=front_ends, mismatch=mismatch,
     )  # fmt: skip
     settings = SwarmSettings(
         n_particles, max_iterations, schedule, w, x0, init_range, explore_fraction, tol
@@ -107,7 +114,7 @@ def estimate_field(
         problem, result, fit, bounds,
         lambda s: make_problem(
             vf, i_f, dt, model, switching=switching, fit_shift=fit_shift, shift=s,
-            front_ends=front_ends,
+            front_ends=front_ends, mismatch=mismatch,
         ),
         polish=polish,
     )  # fmt: skip
@@ -138,6 +145,8 @@ def estimate_field(
         shift_std=std.get("shift", 0.0),
         coverage=coverage,
         front_end_std=std.get("front_end_L", 0.0),
+        mismatch_size=std.get("mismatch_size", math.nan),
+        mismatch_shift=std.get("mismatch_shift", math.nan),
         shared_std={p: std[f"shared_{p}"] for p in ("R", "L") if f"shared_{p}" in std},
         describes_window=not note,
         note=note,

@@ -20,7 +20,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from observer.estimation import intersample_kernels as ik
-from observer.estimation.frontend import FrontEnd, apply_relative, edge_samples
+from observer.estimation.frontend import (
+    UNKNOWN_MISMATCH,
+    FrontEnd,
+    applied_mismatch,
+    apply_relative,
+    edge_samples,
+    parse_front_end,
+    unknown_mismatch,
+)
 from observer.estimation.intersample import (
     PWM_CHANGES,
     InputModel,
@@ -77,6 +85,9 @@ class WindingProblem:
         their relative response is unknown
         (:func:`~observer.estimation.frontend.unknown_mismatch`). A ``switched`` voltage
         shows clean jumps, so no filter; its current channel is taken alike.
+    mismatch_applied : float
+        Untold front ends: the size of the commonest mismatch the voltage was corrected by
+        (:func:`~observer.estimation.frontend.applied_mismatch` of the size learned).
     """
 
     voltage: np.ndarray
@@ -91,6 +102,7 @@ class WindingProblem:
     alias_v: tuple[float, ...] = ()
     untold_front_end: bool = False
     alias_locked: tuple[bool, ...] = ()
+    mismatch_applied: float = 0.0
     _mu_emf: np.ndarray | None = field(default=None, repr=False)
     _mu_cache: dict[tuple[float, float], np.ndarray] = field(default_factory=dict, repr=False)
 
@@ -160,7 +172,7 @@ class WindingProblem:
         return WindingProblem(
             self.voltage, self.current, self.dt, inp, self.emf, self.emf_constant,
             self.fit_shift, self.fit_lag, lag_, self.alias_v, self.untold_front_end,
-            self.alias_locked,
+            self.alias_locked, self.mismatch_applied,
         )  # fmt: skip
 
     # ------------------------------------------------------------- the swarm
@@ -387,6 +399,7 @@ def make_problem(
     lag: float = 0.0,
     also_checked: tuple[np.ndarray, ...] = (),
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
+    mismatch: float | None = None,
 ) -> WindingProblem:
     """A :class:`WindingProblem` for voltage samples under intersample ``model``.
 
@@ -397,7 +410,9 @@ def make_problem(
     ``front_ends`` ``(voltage, current)`` are the channels' known front ends: a
     filtered (``smooth``) voltage is then passed through ``H_i/H_v``
     (:func:`~observer.estimation.frontend.apply_relative`) and the window's
-    edges, which that spoils, leave the segments.
+    edges, which that spoils, leave the segments. Not told them, a filtered voltage is
+    corrected by the ``mismatch`` of the channels learned
+    (:func:`~observer.estimation.frontend.applied_mismatch`), its edges likewise.
     """
     raw_voltage = voltage
     valid = ~(rail_samples(voltage) | rail_samples(current))
@@ -417,6 +432,14 @@ def make_problem(
         valid[:edge] = False
         valid[voltage.shape[0] - edge :] = False
         model = "smooth"
+    applied = applied_mismatch(mismatch) if front_ends is None and model == "smooth" else 0.0
+    if applied:
+        voltage = voltage + applied * unknown_mismatch(voltage, dt)
+        pair = [parse_front_end(text) for text in UNKNOWN_MISMATCH]
+        edge = min(edge_samples(pair[0], pair[1], dt), voltage.shape[0] // 4)
+        valid = valid.copy()
+        valid[:edge] = False
+        valid[voltage.shape[0] - edge :] = False
     if front_ends is not None and model == "switched" and front_ends[0] != front_ends[1]:
         # A filtered jump settles over the voltage filter's response; where the
         # current's front end differs, the samples in it do not relate to the
@@ -458,5 +481,6 @@ def make_problem(
     problem = WindingProblem(
         voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag, alias_v,
         untold_front_end=front_ends is None and model == "smooth", alias_locked=alias_locked,
+        mismatch_applied=applied,
     )  # fmt: skip
     return problem.with_shift(shift, lag) if lag else problem

@@ -56,6 +56,11 @@ class CircuitEstimate:
         The part of ``std["L"]`` (H) an unknown mismatch of the voltage and current
         channels' front ends leaves (0 where they are configured; see
         :func:`~observer.estimation.frontend.unknown_mismatch`).
+    mismatch_size, mismatch_shift : float
+        Untold front ends: the size of the commonest mismatch of the channels
+        (:data:`~observer.estimation.frontend.UNKNOWN_MISMATCH`) this window measured,
+        relative to its raw voltage, and the voltage's delay (sample periods) that goes
+        with it; what the daemon learns the chain from (NaN: not measured).
     shared_std : dict
         The part of ``std`` per parameter (same units) that every window at the same
         operating point shares: a bias that averaging windows does not shrink (the
@@ -83,6 +88,8 @@ class CircuitEstimate:
     coverage: float = 1.0
     front_end_std: float = 0.0
     shared_std: Mapping[str, float] = field(default_factory=dict)
+    mismatch_size: float = math.nan
+    mismatch_shift: float = math.nan
 
     @property
     def time_constant_s(self) -> float:

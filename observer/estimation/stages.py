@@ -23,7 +23,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from observer.estimation import intersample_kernels as ik
-from observer.estimation.frontend import MISMATCH_SHAPES, MISMATCH_UNDERSEEN, unknown_mismatch
+from observer.estimation.frontend import (
+    MISMATCH_SHAPE,
+    MISMATCH_SHAPES,
+    MISMATCH_UNDERSEEN,
+    unknown_mismatch,
+)
 from observer.estimation.intersample import mains_ripple_share
 from observer.estimation.polish import jacobian, levenberg_marquardt
 from observer.estimation.problem import WindingProblem
@@ -567,9 +572,10 @@ def _untold_mismatch(
     columns: np.ndarray,
     tau_samples: float,
     k: int,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> UntoldMismatch:
     """What an untold mismatch of the channels' front ends leaves in ``R, L[, K]``: the
-    whole one-sigma term and the part of it every window shares.
+    whole one-sigma term, the part of it every window shares, and the commonest pair's
+    size measured, with the delay that goes with it (what the daemon learns).
 
     ``columns`` are the residual's changes were the channels each pair of
     :data:`~observer.estimation.frontend.MISMATCH_SHAPES` (size 1), and, where
@@ -583,18 +589,25 @@ def _untold_mismatch(
     measured size implies, counted :data:`~observer.estimation.frontend.MISMATCH_UNDERSEEN`
     times (it sees only part of a real pair's), with the commonest pair's
     posterior spread; that spread is the window's noise where the data
-    measures the size, and the chain's (shared) where it cannot.
+    measures the size, and the chain's (shared) where it cannot. A voltage
+    corrected by a learned size (``problem.mismatch_applied``) adds
+    :data:`~observer.estimation.frontend.MISMATCH_SHAPE` of the correction's
+    move: the real pair need not have the commonest one's shape.
     """
     residual = fit.point.residual
     base = fit.jacobian
     shapes = columns
+    shift = problem.unpack(fit.theta)[3]
+    at_shift = 2 + int(problem.fits_k)
     if not problem.fit_shift:
         base = np.column_stack([base, columns[:, -1]])
         shapes = columns[:, :-1]
+        at_shift = base.shape[1] - 1
     moves = np.abs(np.linalg.lstsq(base, shapes, rcond=None)[0][:k])
-    measured = np.zeros(k)
+    measured = MISMATCH_SHAPE * abs(problem.mismatch_applied) * moves[:, 0]
     spread = np.zeros(k)
     prior_share = 1.0
+    learned = (problem.mismatch_applied, shift)
     for j in range(shapes.shape[1]):
         augmented = np.column_stack([base, shapes[:, j]])
         step = np.linalg.lstsq(augmented, residual, rcond=None)[0]
@@ -608,9 +621,25 @@ def _untold_mismatch(
         if j == 0:
             spread = moves[:, 0] * math.sqrt(var)
             prior_share = var
+            if math.isfinite(s):
+                learned = (problem.mismatch_applied + size, shift - float(step[at_shift]))
     total = np.hypot(measured, spread)
     common = np.hypot(measured, spread * math.sqrt(prior_share))
-    return total, common
+    return UntoldMismatch(total, common, *learned)
+
+
+@dataclass(frozen=True)
+class UntoldMismatch:
+    """What :func:`_untold_mismatch` found in a window."""
+
+    total: np.ndarray
+    """One-sigma moves of ``R, L[, K]`` (relative in ``R`` and ``L``)."""
+    common: np.ndarray
+    """The part of ``total`` every window shares."""
+    size: float
+    """The commonest pair's size the window measured, relative to the raw voltage."""
+    shift: float
+    """The voltage's delay (sample periods) that goes with that size."""
 
 
 def std_stage(
@@ -652,6 +681,7 @@ def std_stage(
     offset = np.zeros(3)
     mismatch = np.zeros(3)
     shared = np.zeros(3)
+    untold: UntoldMismatch | None = None
     if measured:
         # The residual's change per error of the voltage (one solve for every column): the
         # sensor's offset, the alias of each piece, and the untold front ends' mismatch.
@@ -701,10 +731,10 @@ def std_stage(
             shared_alias = per_volt[:, 0] * float(np.sqrt(np.mean(np.square(locked_v))))
             shared[:k] = np.hypot(shared[:k], shared_alias)
         if problem.untold_front_end:
-            total, common = _untold_mismatch(problem, fit, columns[:, n_direct:], tau_samples, k)
-            mismatch[:k] = total
+            untold = _untold_mismatch(problem, fit, columns[:, n_direct:], tau_samples, k)
+            mismatch[:k] = untold.total
             # A mismatch of the channels is the chain's, the same in every window.
-            shared[:k] = np.hypot(shared[:k], common)
+            shared[:k] = np.hypot(shared[:k], untold.common)
         offset[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
         shared[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
         mismatch[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
@@ -739,6 +769,9 @@ def std_stage(
         i += int(problem.fits_k)
     if problem.untold_front_end:
         out["front_end_L"] = float(mismatch[1])
+        if untold is not None:
+            out["mismatch_size"] = untold.size
+            out["mismatch_shift"] = untold.shift
     if measured:
         for j, name in enumerate(("R", "L", "K")[: 2 + int(problem.fits_k)]):
             out[f"shared_{name}"] = float(shared[j])

@@ -68,7 +68,7 @@ from observer.estimation import (
     estimate_field,
     field_search_range,
 )
-from observer.estimation.frontend import winding_front_ends
+from observer.estimation.frontend import applied_mismatch, winding_front_ends
 from observer.estimation.motor import MotorParameters
 from observer.estimation.result import kphi
 from observer.service.ringbuffer import RingBuffer, Window
@@ -111,27 +111,41 @@ class _ChainState:
 
     model: str | None = None  # decided intersample model (None: still deciding)
     shift: float = 0.0  # decided relative delay of the voltage (sample periods)
+    # Untold front ends: the decided size of the channels' commonest mismatch (None: none).
+    mismatch: float | None = None
     votes: Counter[str] = field(default_factory=Counter)
     shifts: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+    mismatches: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
 
-    def record(self, model: str, shift: float, shift_std: float) -> None:
+    def record(self, model: str, est: CircuitEstimate) -> None:
         self.votes[model] += 1
-        if shift_std > 0 and math.isfinite(shift_std):
-            self.shifts.setdefault(model, []).append((shift, shift_std))
+        if est.shift_std > 0 and math.isfinite(est.shift_std):
+            self.shifts.setdefault(model, []).append((est.shift_samples, est.shift_std))
+        if math.isfinite(est.mismatch_size) and math.isfinite(est.mismatch_shift):
+            self.mismatches.setdefault(model, []).append((est.mismatch_size, est.mismatch_shift))
 
     def decide(self) -> None:
-        """Majority model; its windows' delays averaged by inverse variance."""
+        """Majority model; its windows' delays averaged by inverse variance. Untold front
+        ends: the windows' median mismatch of the channels, and where it is large enough to
+        be corrected for (:func:`~observer.estimation.frontend.applied_mismatch`), the median
+        of the delays that go with it."""
         model = self.votes.most_common(1)[0][0]
         pairs = self.shifts.get(model, [])
         if pairs:
             weights = np.array([1.0 / s**2 for _, s in pairs])
             self.shift = float(np.dot(weights, [v for v, _ in pairs]) / weights.sum())
+        sizes = self.mismatches.get(model, [])
+        if sizes:
+            self.mismatch = float(np.median([a for a, _ in sizes]))
+            if applied_mismatch(self.mismatch):
+                self.shift = float(np.median([d for _, d in sizes]))
         self.model = model
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "model": self.model,
             "shift_samples": self.shift if self.model is not None else None,
+            "mismatch": self.mismatch if self.model is not None else None,
             "votes": dict(self.votes),
         }
 
@@ -474,6 +488,7 @@ class SlidingWindowObserver:
             out["intersample"] = state.model
             out["fit_shift"] = False
             out["shift"] = state.shift
+            out["mismatch"] = state.mismatch
         return out
 
     def _learn_chain(self, circuit: str, est: CircuitEstimate) -> None:
@@ -484,12 +499,15 @@ class SlidingWindowObserver:
             return
         if not est.describes_window:
             return
-        state.record(est.intersample, est.shift_samples, est.shift_std)
+        state.record(est.intersample, est)
         if sum(state.votes.values()) >= self.config.chain_windows:
             state.decide()
+            corrected = applied_mismatch(state.mismatch)
             log.info(
-                "%s measurement chain decided over %d windows: %s voltage, delay %.2f samples",
+                "%s measurement chain decided over %d windows: %s voltage, delay %.2f samples%s",
                 circuit, sum(state.votes.values()), state.model, state.shift,
+                f", untold channels corrected for {corrected:.2f} x the commonest mismatch "
+                "(an RC beside a 2nd-order filter)" if corrected else "",
             )  # fmt: skip
 
     def _update_search(
@@ -596,6 +614,10 @@ class SlidingWindowObserver:
             "intersample": est.intersample,
             "shift_samples": est.shift_samples,
             "front_end_std_L": est.front_end_std,
+            # Untold channels: the size of the commonest mismatch this window measured, and
+            # the one the decided chain corrects every window for (0: none).
+            "mismatch_measured": _finite_or_none(est.mismatch_size),
+            "mismatch_corrected": applied_mismatch(self._chain_state[circuit].mismatch),
             "decided": self._chain_state[circuit].model is not None,
         }
         if circuit == "field" and tracked["L"].status == "ok":
