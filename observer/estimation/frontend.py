@@ -22,7 +22,9 @@ Filter sections are ``(kind, w0, Q)`` rows: ``kind`` 1 is ``w0/(s + w0)``,
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -260,18 +262,43 @@ def unknown_mismatch(
     mismatch alone, its gain and phase away from zero frequency. The window is
     mirror-extended as in :func:`apply_relative`.
     """
-    a, b = (parse_front_end(text) for text in pair)
+    return unknown_mismatches(v, dt, (pair,))[0]
+
+
+def unknown_mismatches(
+    v: np.ndarray, dt: float, pairs: tuple[tuple[str, str], ...]
+) -> list[np.ndarray]:
+    """:func:`unknown_mismatch` for each of ``pairs``, from one spectrum of ``v``."""
     n = v.shape[0]
     if n < 4:
-        return np.zeros(n)
+        return [np.zeros(n) for _ in pairs]
+    ext = np.concatenate([v, v[-2:0:-1]])
+    spectrum = np.fft.rfft(ext)
+    return [
+        np.fft.irfft(spectrum * _mismatch_shape(ext.shape[0], float(dt), pair), ext.shape[0])[:n]
+        for pair in pairs
+    ]
+
+
+def mismatch_response(pair: tuple[str, str], dt: float) -> Callable[[int], np.ndarray]:
+    """The change :func:`unknown_mismatch` makes, as a gain at the real FFT's bins of an
+    extension of ``n`` samples (for
+    :func:`~observer.estimation.intersample.smooth_moments_through`)."""
+    return functools.partial(_mismatch_shape, dt=float(dt), pair=pair)
+
+
+@functools.lru_cache(maxsize=32)
+def _mismatch_shape(n: int, dt: float, pair: tuple[str, str]) -> np.ndarray:
+    """``H_b/H_a`` less its delay, minus one, at the real FFT's bins of ``n`` samples (a
+    window's length repeats: cached, read-only)."""
+    a, b = (parse_front_end(text) for text in pair)
     fs = 1.0 / dt
     f0 = 1e-4 * fs
     delay = -float(np.angle(relative_response(a, b, np.array([f0]), fs)[0])) / (2 * math.pi * f0)
-    ext = np.concatenate([v, v[-2:0:-1]])
-    f = np.fft.rfftfreq(ext.shape[0], dt)
-    shape = relative_response(a, b, f, fs) * np.exp(2j * math.pi * f * delay) - 1.0
-    out: np.ndarray = np.fft.irfft(np.fft.rfft(ext) * shape, ext.shape[0])[:n]
-    return out
+    f = np.fft.rfftfreq(n, dt)
+    shape: np.ndarray = relative_response(a, b, f, fs) * np.exp(2j * math.pi * f * delay) - 1.0
+    shape.flags.writeable = False
+    return shape
 
 
 #: An untold mismatch of the commonest pair's shape (:data:`UNKNOWN_MISMATCH`) learned from

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -827,6 +827,49 @@ def smooth_moments(v: np.ndarray, segments: Segments, shift: float = 0.0) -> np.
         moments = np.fft.irfft(spectrum[None, :] * _legendre_responses(n), n, axis=1)
         mu[st:en, :] = moments[:, : m - 1].T
     return mu
+
+
+def smooth_moments_through(
+    v: np.ndarray,
+    segments: Segments,
+    shift: float,
+    responses: Sequence[Callable[[int], np.ndarray]],
+) -> list[np.ndarray]:
+    """:func:`smooth_moments` of ``v`` seen through each of ``responses``, from one spectrum.
+
+    Each response gives, for an extension of ``n`` samples, the filter's
+    complex gain at the real FFT's bins. A segment's mirrored extension is
+    transformed once and multiplied by each response (the moments of the
+    filtered band-limited interpolant); short segments keep the cubic of the
+    filtered samples.
+    """
+    lengths = segments.ends - segments.starts + 1
+    short = lengths < MIN_SPECTRAL_SEGMENT
+    x = np.asarray(v, dtype=np.float64)
+    outs = [np.zeros((x.shape[0] - 1, 3)) for _ in responses]
+    if short.any():
+        few = Segments(segments.starts[short], segments.ends[short], segments.n_samples)
+        ext = np.concatenate([x, x[-2:0:-1]])
+        spectrum = np.fft.rfft(ext)
+        for out, response in zip(outs, responses, strict=True):
+            filtered = np.fft.irfft(spectrum * response(ext.shape[0]), ext.shape[0])[: x.shape[0]]
+            out += cubic_moments(filtered, few, shift)
+    for st, en in zip(segments.starts[~short], segments.ends[~short], strict=True):
+        m = int(en) - int(st) + 1
+        seg = x[st : en + 1]
+        if m >= HALF_SAMPLE_MIRROR:
+            ext = np.concatenate([seg, seg[::-1]])
+        else:
+            ext = np.concatenate([seg, seg[-2:0:-1]])
+        n = ext.shape[0]
+        spectrum = np.fft.rfft(ext)
+        if shift != 0.0:
+            spectrum = spectrum * np.exp(1j * 2.0 * np.pi * np.fft.rfftfreq(n) * shift)
+        legendre = _legendre_responses(n)
+        for out, response in zip(outs, responses, strict=True):
+            moments = np.fft.irfft((spectrum * response(n))[None, :] * legendre, n, axis=1)
+            out[st:en, :] = moments[:, : m - 1].T
+    return outs
 
 
 @dataclass(frozen=True)

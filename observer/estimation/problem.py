@@ -26,6 +26,7 @@ from observer.estimation.frontend import (
     applied_mismatch,
     apply_relative,
     edge_samples,
+    mismatch_response,
     parse_front_end,
     unknown_mismatch,
 )
@@ -44,6 +45,7 @@ from observer.estimation.intersample import (
     rail_samples,
     settle_current,
     smooth_moments,
+    smooth_moments_through,
 )
 from observer.estimation.pso import CostFunction
 
@@ -284,6 +286,17 @@ class WindingProblem:
         if self.inp.model == "averaged":
             return averaged_moments(dv)
         return smooth_moments(dv, self.inp.segments, self.unpack(theta)[3])
+
+    def mismatch_moments(
+        self, theta: np.ndarray, pairs: Sequence[tuple[str, str]]
+    ) -> list[np.ndarray]:
+        """The moments' change were the channels each of ``pairs`` (untold front ends; see
+        :func:`~observer.estimation.frontend.unknown_mismatch`), read through the
+        band-limited model at ``theta``'s shift, from one spectrum of each segment."""
+        return smooth_moments_through(
+            self.voltage, self.inp.segments, self.unpack(theta)[3],
+            [mismatch_response(pair, self.dt) for pair in pairs],
+        )  # fmt: skip
 
     def offset_column(self, theta: np.ndarray, where: slice = slice(None)) -> np.ndarray:
         """d(residual)/d(voltage offset) at ``theta``: the residual's change per volt added
