@@ -109,6 +109,50 @@ def moment_coefficients(
     return a, g * w0, 3.0 * g * w1, 5.0 * g * w2
 
 
+#: The series' derivatives: ``w_j'(x) = sum_n (n+1) * W_j[n+1] * x^n``.
+_W0_SLOPE = _W0[1:] * np.arange(1, _SERIES_TERMS)
+_W1_SLOPE = _W1[1:] * np.arange(1, _SERIES_TERMS)
+_W2_SLOPE = _W2[1:] * np.arange(1, _SERIES_TERMS)
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def moment_coefficient_slopes(
+    resistance: float, inductance: float, dt: float
+) -> tuple[float, float, float, float]:
+    """``(da, dc_0, dc_1, dc_2)``: the derivatives of :func:`moment_coefficients` by ``ln R``.
+
+    With ``x = R*T/L`` and ``beta = T/L``, ``a`` depends on ``x`` alone and
+    ``c_j = beta * (2j+1) * w_j(x)``, so ``d/d ln R = x d/dx`` and
+    ``d/d ln L = -x d/dx - beta d/d beta``: ``da/d ln L = -da/d ln R`` and
+    ``dc_j/d ln L = -dc_j/d ln R - c_j``.
+    """
+    x = resistance * dt / inductance
+    if x < _SERIES_X:
+        last = _SERIES_TERMS - 2
+        d0 = _W0_SLOPE[last]
+        d1 = _W1_SLOPE[last]
+        d2 = _W2_SLOPE[last]
+        for n in range(last - 1, -1, -1):
+            d0 = d0 * x + _W0_SLOPE[n]
+            d1 = d1 * x + _W1_SLOPE[n]
+            d2 = d2 * x + _W2_SLOPE[n]
+        a = math.exp(-x)
+    else:
+        # The closed forms of moment_coefficients, differentiated (d om/dx = a, dy/dx = -y^2).
+        om = -math.expm1(-x)
+        a = 1.0 - om
+        y = 1.0 / x
+        m0 = om * y
+        dm0 = y * (a - m0)
+        dm1 = y * y * (2.0 * om * y - 1.0 - a)
+        dm2 = y * y * (4.0 * y + 2.0 * a * y - 6.0 * om * y * y - 1.0)
+        d0 = dm0
+        d1 = 2.0 * dm1 - dm0
+        d2 = 6.0 * dm2 - 6.0 * dm1 + dm0
+    gx = dt / inductance * x
+    return -x * a, gx * d0, 3.0 * gx * d1, 5.0 * gx * d2
+
+
 @njit(nogil=True, cache=True)
 def segment_noise_energy(a: float, c0: float, m: int) -> float:
     """Expected sum of squares over a segment of ``m`` samples of unit white input noise.
@@ -695,6 +739,183 @@ def moment_residual(
         for i in range(m):
             out[pos + i] -= i0 * free[i]
         pos += m
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
+def moment_residual_jacobian(
+    resistance: float,
+    inductance: float,
+    emf_constant: float,
+    mu: np.ndarray,
+    mu_emf: np.ndarray,
+    current: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    dt: float,
+    emf_mode: int,
+    out: np.ndarray,
+    jac: np.ndarray,
+    initial: np.ndarray,
+    normal: np.ndarray,
+) -> None:
+    """:func:`moment_residual` and its derivatives by ``ln R``, ``ln L`` (and ``K``), one pass.
+
+    ``out`` and ``initial`` receive what :func:`moment_residual` gives them (the
+    same recursion, so the same numbers to rounding); ``jac`` (``(covered, 2)``, or
+    ``(covered, 3)`` with ``emf_mode == EMF_FIT``) the derivatives of ``out``
+    by ``ln R``, ``ln L`` and ``K``, each segment's ``i0`` projected out as
+    in the residual (``r = d - i0*g``, ``i0 = (g.d)/(g.g)``, so
+    ``dr = dd - di0*g - i0*dg``); ``normal`` (``(p, p + 1)``) ``J'J`` and
+    ``J'r`` beside it, which the polish needs every step (over a tall ``J``
+    of a few columns BLAS takes longer than this whole kernel).
+
+    Only the sensitivity to ``ln R`` needs its own recursion: the forced
+    response ``f`` is ``T/L`` times a function of ``x = R*T/L`` and the free
+    response ``g`` a function of ``x`` alone, so ``df/d ln L = -df/d ln R - f``
+    and ``dg/d ln L = -dg/d ln R``; ``df/dK`` is minus the response to
+    ``if*omega``.
+    """
+    a, c0, c1, c2 = moment_coefficients(resistance, inductance, dt)
+    da, q0, q1, q2 = moment_coefficient_slopes(resistance, inductance, dt)
+    a_g = max(a, _A_FLOOR)
+    da_g = da if a > _A_FLOOR else 0.0
+    has_emf = emf_mode != EMF_NONE
+    fit_k = emf_mode == EMF_FIT
+    longest = 0
+    for s in range(starts.shape[0]):
+        longest = max(longest, ends[s] - starts[s] + 1)
+    free = np.empty(longest)
+    free_r = np.empty(longest)
+    sums = np.zeros(9)
+    pos = 0
+    for s in range(starts.shape[0]):
+        st = starts[s]
+        en = ends[s]
+        f = 0.0
+        f_r = 0.0
+        f_e = 0.0
+        g = 1.0
+        g_r = 0.0
+        s_dg = 0.0
+        s_gg = 0.0
+        s_fg = 0.0
+        s_rg = 0.0  # d(g.d)/d ln R
+        s_ggr = 0.0  # g.dg/d ln R
+        s_eg = 0.0
+        for k in range(st, en + 1):
+            i = pos + k - st
+            d = current[k] - f
+            out[i] = d
+            free[k - st] = g
+            free_r[k - st] = g_r
+            jac[i, 0] = f_r
+            jac[i, 1] = f
+            s_dg += d * g
+            s_gg += g * g
+            s_fg += f * g
+            s_rg += d * g_r - f_r * g
+            s_ggr += g * g_r
+            if fit_k:
+                jac[i, 2] = f_e
+                s_eg += f_e * g
+            if k == en:
+                break
+            m0 = mu[k, 0]
+            m1 = mu[k, 1]
+            m2 = mu[k, 2]
+            if has_emf:
+                e0 = mu_emf[k, 0]
+                e1 = mu_emf[k, 1]
+                e2 = mu_emf[k, 2]
+                v0 = m0 - emf_constant * e0
+                v1 = m1 - emf_constant * e1
+                v2 = m2 - emf_constant * e2
+                if fit_k:
+                    f_e = a * f_e + (c0 * e0 + c1 * e1 + c2 * e2)
+            else:
+                v0 = m0
+                v1 = m1
+                v2 = m2
+            u = c0 * v0 + c1 * v1 + c2 * v2
+            f_r = a * f_r + (da * f + (q0 * v0 + q1 * v1 + q2 * v2))
+            f = a * f + u
+            g_r = a_g * g_r + da_g * g
+            g = a_g * g + _G_FLOOR
+        i0 = s_dg / s_gg
+        initial[s] = i0
+        di0_r = (s_rg - 2.0 * i0 * s_ggr) / s_gg
+        di0_l = s_fg / s_gg - di0_r
+        di0_k = s_eg / s_gg
+        m = en - st + 1
+        _project_segment(out, jac, free, free_r, pos, m, i0, (di0_r, di0_l, di0_k), fit_k, sums)
+        pos += m
+    normal[0, 0] = sums[0]
+    normal[0, 1] = normal[1, 0] = sums[1]
+    normal[1, 1] = sums[2]
+    normal[0, -1] = sums[3]
+    normal[1, -1] = sums[4]
+    if fit_k:
+        normal[0, 2] = normal[2, 0] = sums[5]
+        normal[1, 2] = normal[2, 1] = sums[6]
+        normal[2, 2] = sums[7]
+        normal[2, -1] = sums[8]
+
+
+@njit(nogil=True, cache=True, fastmath={"reassoc", "contract"})
+def _project_segment(
+    out: np.ndarray,
+    jac: np.ndarray,
+    free: np.ndarray,
+    free_r: np.ndarray,
+    pos: int,
+    m: int,
+    i0: float,
+    di0: tuple[float, float, float],
+    fit_k: bool,
+    sums: np.ndarray,
+) -> None:
+    """A segment's ``i0`` projected out of its residual and Jacobian rows, and their products
+    added to ``sums`` (``J'J`` by rows ``rr, rl, ll``, ``J'r`` by ``r, l``, then ``rk, lk,
+    kk`` and ``k``).
+
+    Apart from the recursion, so that the sums may be reassociated (vectorised,
+    as :func:`observer.estimation.kernels.score_products`): the residual and the
+    Jacobian themselves are products taken element by element, the same either way.
+    """
+    di0_r, di0_l, di0_k = di0
+    n_rr = n_rl = n_ll = n_rk = n_lk = n_kk = 0.0
+    b_r = b_l = b_k = 0.0
+    for i in range(m):
+        gi = free[i]
+        ig_r = i0 * free_r[i]
+        r = out[pos + i] - i0 * gi
+        f_r = jac[pos + i, 0]
+        j_r = -f_r - (di0_r * gi + ig_r)
+        j_l = (f_r + jac[pos + i, 1]) - (di0_l * gi - ig_r)
+        out[pos + i] = r
+        jac[pos + i, 0] = j_r
+        jac[pos + i, 1] = j_l
+        n_rr += j_r * j_r
+        n_rl += j_r * j_l
+        n_ll += j_l * j_l
+        b_r += j_r * r
+        b_l += j_l * r
+        if fit_k:
+            j_k = jac[pos + i, 2] - di0_k * gi
+            jac[pos + i, 2] = j_k
+            n_rk += j_r * j_k
+            n_lk += j_l * j_k
+            n_kk += j_k * j_k
+            b_k += j_k * r
+    sums[0] += n_rr
+    sums[1] += n_rl
+    sums[2] += n_ll
+    sums[3] += b_r
+    sums[4] += b_l
+    sums[5] += n_rk
+    sums[6] += n_lk
+    sums[7] += n_kk
+    sums[8] += b_k
 
 
 # ---------------------------------------------------------------- reconstruction

@@ -186,3 +186,74 @@ def test_cubic_moments_stencil_equals_the_cubic_point_by_point(shift):
                 val = weight * ik._cubic_point(v, st, m, min(m, 4), k + u + shift)
                 expected[st + k] += val * np.array([1.0, 2 * u - 1, 6 * u * u - 6 * u + 1])
     np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12 * np.max(np.abs(v)))
+
+
+@pytest.mark.parametrize("x", [1e-4, 0.05, 0.4, 0.999, 1.001, 3.0, 20.0])
+def test_the_coefficient_slopes_are_the_coefficients_derivatives(x):
+    # Both branches (series below x = 1, closed forms above), against central differences
+    # in ln R (Richardson-extrapolated: a at small x moves by x*h only); the ln L slopes
+    # follow from them (see moment_coefficient_slopes).
+    r, dt = 2.0, 1e-4
+    ell = r * dt / x
+
+    def central(h):
+        up = np.array(ik.moment_coefficients(r * math.exp(h), ell, dt))
+        down = np.array(ik.moment_coefficients(r * math.exp(-h), ell, dt))
+        return (up - down) / (2 * h)
+
+    slopes = np.array(ik.moment_coefficient_slopes(r, ell, dt))
+    expected = (4 * central(5e-4) - central(1e-3)) / 3
+    # a = 1 - expm1 above the series loses its digits below 1e-16 absolute: so does its slope.
+    np.testing.assert_allclose(slopes, expected, rtol=1e-7, atol=1e-9 * np.max(np.abs(expected)))
+
+
+def _residual(theta, fit_k, k_held, mu, mu_emf, y, starts, ends, dt, has_emf):
+    out, initial = np.empty(int(np.sum(ends - starts + 1))), np.empty(starts.size)
+    k = theta[2] if fit_k else k_held
+    ik.moment_residual(
+        math.exp(theta[0]), math.exp(theta[1]), k, mu, mu_emf, y, starts, ends, dt, has_emf,
+        out, initial,
+    )  # fmt: skip
+    return out, initial
+
+
+@pytest.mark.parametrize("circuit", ["field", "armature", "armature_held_k"])
+@pytest.mark.parametrize("moments", ["hold", "smooth"])
+def test_the_residual_jacobian_kernel_is_the_residual_and_its_derivatives(window, circuit, moments):
+    from observer.estimation.intersample import smooth_moments
+
+    dt = window["dt"]
+    starts, ends = np.array([0, 600, 1300]), np.array([500, 1200, 1999])
+    seg = Segments(starts, ends, window["vf"].size)
+    v, y = (window["vf"], window["if"]) if circuit == "field" else (window["va"], window["ia"])
+    emf = kernels.emf_input(window["if"], window["omega"])
+    if moments == "hold":
+        mu, mu_emf = _hold(v), _hold(emf)
+    else:
+        mu, mu_emf = smooth_moments(v, seg, 0.3), smooth_moments(emf, seg, 0.0)
+    mode = {"field": ik.EMF_NONE, "armature": ik.EMF_FIT, "armature_held_k": ik.EMF_HELD}[circuit]
+    fit_k, has_emf = mode == ik.EMF_FIT, mode != ik.EMF_NONE
+    # Near, not at, each winding's values: the residual and its slopes are not small.
+    r, ell, k = (170.0, 55.0, 0.0) if circuit == "field" else (3.2, 0.022, 1.1)
+    theta = np.array([math.log(r), math.log(ell), k][: 2 + int(fit_k)])
+    p = theta.size
+    out, jac = np.empty(seg.covered), np.empty((seg.covered, p))
+    initial, normal = np.empty(3), np.empty((p, p + 1))
+    ik.moment_residual_jacobian(
+        r, ell, k, mu, mu_emf, y, starts, ends, dt, mode, out, jac, initial, normal
+    )  # fmt: skip
+    args = (fit_k, k, mu, mu_emf, y, starts, ends, dt, has_emf)
+    plain, plain_initial = _residual(theta, *args)
+    # The residual is the residual kernel's, to rounding (the compiler fuses its products
+    # into FMAs as the surrounding code lets it).
+    scale = np.max(np.abs(plain))
+    np.testing.assert_allclose(out, plain, rtol=0, atol=1e-13 * scale)
+    np.testing.assert_allclose(initial, plain_initial, rtol=1e-13)
+    for j in range(p):
+        h = 1e-5 * max(abs(theta[j]), 1.0)
+        step = np.zeros(p)
+        step[j] = h
+        central = (_residual(theta + step, *args)[0] - _residual(theta - step, *args)[0]) / (2 * h)
+        assert np.linalg.norm(jac[:, j] - central) < 1e-7 * np.linalg.norm(central)
+    np.testing.assert_allclose(normal[:, :p], jac.T @ jac, rtol=1e-12)
+    np.testing.assert_allclose(normal[:, p], jac.T @ out, rtol=1e-9)
