@@ -4,12 +4,14 @@ Runs ``dcobserver replay``'s code path (:func:`observer.service.daemon.run_offli
 over a simulated P-12 recording at 10 kHz with both circuits, the daemon's
 default configuration, and attributes every call of the two numerical
 kernels (the swarm's cost, :func:`~observer.estimation.intersample_kernels.moment_swarm_costs`,
-and the polish's residual, :func:`~observer.estimation.intersample_kernels.moment_residual`)
+the polish's residual, :func:`~observer.estimation.intersample_kernels.moment_residual`,
+and its residual with the Jacobian,
+:func:`~observer.estimation.intersample_kernels.moment_residual_jacobian`)
 and the time of every stage to the stage that made it. Windows are split into
 the first ones (cold swarms, chain still being decided) and the warm rest.
 
 The instrumentation wraps the stage functions where the estimators look them
-up and the two kernels where :mod:`observer.estimation.problem` calls them; it
+up and the three kernels where :mod:`observer.estimation.problem` calls them; it
 adds about a microsecond per call. Replay speed is also measured without it,
 in the same run: data seconds per wall-clock second (CPU time of the thread as
 well, which other processes on a shared machine do not inflate).
@@ -66,6 +68,7 @@ class Ledger:
         self.particle_samples: dict[Key, int] = defaultdict(int)
         self.swarm_evals: dict[Key, int] = defaultdict(int)
         self.residuals: dict[Key, int] = defaultdict(int)
+        self.jacobians: dict[Key, int] = defaultdict(int)
         self.windows: dict[tuple[str, str], set[int]] = defaultdict(set)
 
     @property
@@ -125,6 +128,7 @@ def instrument(ledger: Ledger) -> Callable[[], None]:
 
     swarm_kernel = ik.moment_swarm_costs
     residual_kernel = ik.moment_residual
+    jacobian_kernel = ik.moment_residual_jacobian
 
     def counted_swarm(x: np.ndarray, *a: Any) -> np.ndarray:
         k = ledger.key()
@@ -136,8 +140,13 @@ def instrument(ledger: Ledger) -> Callable[[], None]:
         ledger.residuals[ledger.key()] += 1
         residual_kernel(*a)
 
+    def counted_jacobian(*a: Any) -> None:
+        ledger.jacobians[ledger.key()] += 1
+        jacobian_kernel(*a)
+
     patch(ik, "moment_swarm_costs", counted_swarm)
     patch(ik, "moment_residual", counted_residual)
+    patch(ik, "moment_residual_jacobian", counted_jacobian)
 
     def restore() -> None:
         for module, name, original in reversed(undo):
@@ -273,8 +282,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"< {1e3 * hop / TARGET_REPLAY_X:.1f} ms).",
         "",
         "| circuit | windows | stage | ms / window | share | swarm evaluations / window | "
-        "particle-samples / window | residual evaluations / window |",
-        "|---|---|---|---|---|---|---|---|",
+        "particle-samples / window | residual evaluations / window | "
+        "residual + Jacobian evaluations / window |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     short = [lines[6]]
     stages = STAGES + ("other",)
@@ -289,7 +299,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"| {circuit} | {group} {n} | **all** | **{1e3 * total / n:.1f}** | 100 % | "
                 f"{sum(ledger.swarm_evals[k] for k in keys) / n:.0f} | "
                 f"{sum(ledger.particle_samples[k] for k in keys) / n:.3g} | "
-                f"{sum(ledger.residuals[k] for k in keys) / n:.0f} |"
+                f"{sum(ledger.residuals[k] for k in keys) / n:.0f} | "
+                f"{sum(ledger.jacobians[k] for k in keys) / n:.0f} |"
             )
             short.append(f"{circuit} {group} ({n} windows): {1e3 * total / n:.1f} ms/window")
             for k in keys:
@@ -300,11 +311,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     f"| {circuit} | {group} {n} | {k[2]} | {ms:.2f} | "
                     f"{100 * ledger.seconds[k] / max(total, 1e-12):.0f} % | "
                     f"{ledger.swarm_evals[k] / n:.0f} | {ledger.particle_samples[k] / n:.3g} | "
-                    f"{ledger.residuals[k] / n:.0f} |"
+                    f"{ledger.residuals[k] / n:.0f} | {ledger.jacobians[k] / n:.0f} |"
                 )
                 short.append(
                     f"  {k[2]:<20} {ms:7.2f} ms  swarm evals {ledger.swarm_evals[k] / n:6.0f}"
                     f"  residuals {ledger.residuals[k] / n:5.0f}"
+                    f"  r+J {ledger.jacobians[k] / n:5.0f}"
                 )
     lines += [
         "",
@@ -314,8 +326,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         "`settled_stage` a settled window's start from the tracked state (one cost "
         "evaluation; its polish is counted under `polish_stage`), which runs no swarm unless "
         "that polish fails. Residual "
-        "evaluations are the polish's and the specification test's Levenberg-Marquardt steps "
-        "and finite-difference Jacobians (2 per parameter).",
+        "evaluations are the specification test's Levenberg-Marquardt steps, and the "
+        "finite-difference columns of a fitted shift or lag; residual + Jacobian evaluations "
+        "the polish's steps, each with the exact sensitivities to ln R, ln L and K "
+        "(`moment_residual_jacobian`).",
         "",
     ]
     ser, thr = float(np.median(serial)), float(np.median(threaded))

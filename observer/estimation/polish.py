@@ -7,6 +7,7 @@ bound describes the estimate's spread. Parameters are ``(ln R, ln L,
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -36,6 +37,11 @@ def jacobian(residual: Any, theta: np.ndarray, at: np.ndarray | None = None) -> 
     return np.column_stack(cols)
 
 
+#: What :func:`levenberg_marquardt` takes as ``residual_and_jacobian``: the residual
+#: ``r``, its Jacobian ``J``, ``J'J`` and ``J'r`` at ``theta``.
+ResidualAndJacobian = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+
+
 def levenberg_marquardt(
     residual: Any,
     theta: np.ndarray,
@@ -47,10 +53,15 @@ def levenberg_marquardt(
     step_tol: float = 1e-9,
     start: tuple[np.ndarray, np.ndarray] | None = None,
     fixed_jacobian: bool = False,
+    residual_and_jacobian: ResidualAndJacobian | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimise ``|residual(theta)|^2``; return ``theta``, residual and Jacobian there.
 
-    Sensitivities come from :func:`jacobian` (forward differences). Steps
+    Sensitivities come from ``residual_and_jacobian`` where the caller has
+    them (:meth:`~observer.estimation.problem.WindingProblem.residual_and_jacobian`:
+    exact, in the residual's own pass; every trial step evaluates it, and an
+    accepted one keeps its Jacobian), else from :func:`jacobian` (forward
+    differences, one residual per parameter after every accepted step). Steps
     are kept inside ``[lower, upper]`` (the swarm's search range): in a window
     that does not identify a parameter the cost is flat along it, and an
     unbounded step would run ``log L`` to overflow.
@@ -64,17 +75,20 @@ def levenberg_marquardt(
     """
     lo = np.full(theta.size, -np.inf) if lower is None else lower
     hi = np.full(theta.size, np.inf) if upper is None else upper
+    exact = residual_and_jacobian if not fixed_jacobian else None
 
-    def safe_residual(th: np.ndarray) -> np.ndarray | None:
+    def safe(th: np.ndarray) -> tuple[np.ndarray, ...] | None:
         try:
             with np.errstate(all="ignore"):
-                r_ = residual(th)
+                out = (residual(th),) if exact is None else exact(th)
         except (OverflowError, ZeroDivisionError, FloatingPointError):
             return None
-        return r_ if np.all(np.isfinite(r_)) else None
+        return out if np.all(np.isfinite(out[0])) else None
 
     if start is not None:
         r, jac = start
+    elif exact is not None:
+        r, jac, _, _ = exact(theta)
     else:
         r = residual(theta)
         jac = jacobian(residual, theta, r)
@@ -103,11 +117,12 @@ def levenberg_marquardt(
                 damping *= 10
                 continue
             trial = np.clip(theta + step, lo, hi)
-            r_safe = safe_residual(trial)
-            if r_safe is None:
+            evaluated = safe(trial)
+            if evaluated is None:
                 damping *= 10
                 continue
-            r_trial = r_safe
+            r_trial = evaluated[0]
+            jac_trial = evaluated[1] if exact is not None else jac
             cost_trial = float(r_trial @ r_trial)
             if cost_trial < cost:
                 improved = True
@@ -118,7 +133,9 @@ def levenberg_marquardt(
         relative_gain = (cost - cost_trial) / max(cost, 1e-300)
         moved = float(np.max(np.abs(trial - theta) / np.maximum(np.abs(theta), 1.0)))
         theta, r, cost = trial, r_trial, cost_trial
-        if not fixed_jacobian:
+        if exact is not None:
+            jac = jac_trial
+        elif not fixed_jacobian:
             jac = jacobian(residual, theta, r)
         damping = max(damping / 10, 1e-9)
         # Converged, or creeping along a direction the window does not identify

@@ -233,6 +233,40 @@ class WindingProblem:
         out, _ = self.evaluate(resistance, inductance, k, shift, self.lag_of(theta))
         return out
 
+    def residual_and_jacobian(
+        self, theta: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`residual`, its Jacobian by ``theta``, ``J'J`` and ``J'r`` at ``theta``.
+
+        The columns of ``ln R``, ``ln L`` (and ``K``) are exact, from the
+        residual's own kernel pass
+        (:func:`~observer.estimation.intersample_kernels.moment_residual_jacobian`):
+        one evaluation where forward differences take one more per parameter.
+        A fitted shift or lag moves the voltage's moments (a cubic reconstruction,
+        a lag filter) and keeps its forward difference, as
+        :func:`~observer.estimation.polish.jacobian` takes it.
+        """
+        resistance, inductance, k, shift = self.unpack(theta)
+        mu = self.mu(shift, self.lag_of(theta))
+        seg = self.inp.segments
+        core = 2 + int(self.fits_k)
+        out = np.empty(seg.covered)
+        jac = np.empty((seg.covered, theta.size))
+        initial = np.empty(seg.count)
+        normal = np.empty((core, core + 1))
+        ik.moment_residual_jacobian(
+            resistance, inductance, k, mu, self.mu_emf, self.current, seg.starts, seg.ends,
+            self.dt, self.emf_mode, out, jac, initial, normal,
+        )  # fmt: skip
+        if theta.size == core:
+            return out, jac, normal[:, :core], normal[:, core]
+        for j in range(core, theta.size):
+            h = 1e-6 * max(abs(theta[j]), 1e-3)
+            up = theta.copy()
+            up[j] += h
+            jac[:, j] = (self.residual(up) - out) / h
+        return out, jac, jac.T @ jac, jac.T @ out
+
     def evaluate(
         self,
         resistance: float,

@@ -233,8 +233,9 @@ def polish_stage(
     lower, upper = problem.limits(bounds.log_bounds())
     if polish:
         theta, resid, jac = levenberg_marquardt(
-            problem.residual, theta, lower=lower, upper=upper, max_iterations=max_iterations
-        )
+            problem.residual, theta, lower=lower, upper=upper, max_iterations=max_iterations,
+            residual_and_jacobian=problem.residual_and_jacobian,
+        )  # fmt: skip
     else:
         resid = problem.residual(theta)
         jac = jacobian(problem.residual, theta)

@@ -178,11 +178,12 @@ def test_window_work_quick_accounts_every_stage(tmp_path, capsys):
     evaluations = {}
     for line in text.splitlines():
         cells = [c.strip() for c in line.strip("|").split("|")]
-        if len(cells) == 8 and cells[2] in ("swarm_stage", "specification_stage"):
-            evaluations[cells[0], cells[2]] = (float(cells[5]), float(cells[7]))
+        if len(cells) == 9 and cells[2] in ("swarm_stage", "specification_stage", "polish_stage"):
+            evaluations[cells[0], cells[2]] = (float(cells[5]), float(cells[7]), float(cells[8]))
     for circuit in ("field", "armature"):
         assert evaluations[circuit, "swarm_stage"][0] > 0  # swarm evaluations per window
         assert evaluations[circuit, "specification_stage"][1] > 0  # residuals per window
+        assert evaluations[circuit, "polish_stage"][2] > 0  # residuals with the Jacobian
     assert "wrote" in capsys.readouterr().out
 
 
