@@ -7,11 +7,13 @@ bound describes the estimate's spread. Parameters are ``(ln R, ln L,
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from observer.estimation import kernels
 from observer.estimation.ranges import SearchRange
 
 
@@ -76,54 +78,41 @@ def levenberg_marquardt(
     lo = np.full(theta.size, -np.inf) if lower is None else lower
     hi = np.full(theta.size, np.inf) if upper is None else upper
     exact = residual_and_jacobian if not fixed_jacobian else None
-
-    def safe(th: np.ndarray) -> tuple[np.ndarray, ...] | None:
-        try:
-            with np.errstate(all="ignore"):
-                out = (residual(th),) if exact is None else exact(th)
-        except (OverflowError, ZeroDivisionError, FloatingPointError):
-            return None
-        return out if np.all(np.isfinite(out[0])) else None
-
     if start is not None:
         r, jac = start
+        jtj, grad = _normal_equations(jac, r)
     elif exact is not None:
-        r, jac, _, _ = exact(theta)
+        r, jac, jtj, grad = exact(theta)
     else:
         r = residual(theta)
         jac = jacobian(residual, theta, r)
+        jtj, grad = _normal_equations(jac, r)
     cost = float(r @ r)
     damping = 1e-3
+    diagonal = np.diag_indices(theta.size)
     for _ in range(max_iterations):
-        jtj = jac.T @ jac
-        grad = jac.T @ r
-        scale = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
+        curvature = np.maximum(np.diag(jtj), 1e-300)
         # What the undamped step would gain at best (Gauss-Newton): nothing worth a
         # residual means theta is the minimum already (a refit starting on its
         # optimum), where the damped trials below would fail one after another.
-        try:
-            within = float(grad @ np.linalg.lstsq(jtj, grad, rcond=None)[0]) < rtol * cost
-        except np.linalg.LinAlgError:
-            within = False
-        if within:
+        if _gauss_newton_gain(jtj, grad) < rtol * cost:
             break
         improved = False
         for _ in range(12):
             # Marquardt's scaling: damp each direction by its own curvature.
-            a = jtj + damping * np.diag(scale**2)
+            a = jtj.copy()
+            a[diagonal] += damping * curvature
             try:
                 step = -np.linalg.solve(a, grad)
             except np.linalg.LinAlgError:
                 damping *= 10
                 continue
             trial = np.clip(theta + step, lo, hi)
-            evaluated = safe(trial)
-            if evaluated is None:
+            outcome = _trial(residual, exact, trial)
+            if outcome is None:
                 damping *= 10
                 continue
-            r_trial = evaluated[0]
-            jac_trial = evaluated[1] if exact is not None else jac
-            cost_trial = float(r_trial @ r_trial)
+            cost_trial, evaluated = outcome
             if cost_trial < cost:
                 improved = True
                 break
@@ -132,17 +121,64 @@ def levenberg_marquardt(
             break
         relative_gain = (cost - cost_trial) / max(cost, 1e-300)
         moved = float(np.max(np.abs(trial - theta) / np.maximum(np.abs(theta), 1.0)))
-        theta, r, cost = trial, r_trial, cost_trial
+        theta, r, cost = trial, evaluated[0], cost_trial
         if exact is not None:
-            jac = jac_trial
-        elif not fixed_jacobian:
+            _, jac, jtj, grad = evaluated
+        elif fixed_jacobian:
+            grad = jac.T @ r
+        else:
             jac = jacobian(residual, theta, r)
+            jtj, grad = _normal_equations(jac, r)
         damping = max(damping / 10, 1e-9)
         # Converged, or creeping along a direction the window does not identify
         # (flat cost, e.g. Lf under constant field voltage): more steps buy nothing.
         if relative_gain < rtol or moved < step_tol:
             break
     return theta, r, jac
+
+
+def _normal_equations(jac: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``J'J`` and ``J'r``; the first by the uncertainty's kernel (BLAS takes twice as long
+    over a tall ``J`` of two to five columns)."""
+    jtj, _ = kernels.score_products(
+        np.ascontiguousarray(jac, dtype=np.float64), np.ascontiguousarray(r, dtype=np.float64), 0
+    )
+    return jtj, jac.T @ r
+
+
+def _gauss_newton_gain(jtj: np.ndarray, grad: np.ndarray) -> float:
+    """``grad' pinv(J'J) grad``: how much the undamped step would lower the cost at best.
+
+    The pseudo-inverse as :func:`numpy.linalg.lstsq` takes it (singular values
+    below ``eps * size`` of the largest dropped): a direction the window does
+    not identify (flat cost) adds nothing. ``J'J`` is symmetric, so its
+    eigenvalues are its singular values; ``eigh`` costs half of ``lstsq``.
+    """
+    try:
+        values, vectors = np.linalg.eigh(jtj)
+    except np.linalg.LinAlgError:
+        return math.inf
+    if not np.all(np.isfinite(values)):
+        return math.inf  # as lstsq, which fails on them: no verdict, take a step
+    along = vectors.T @ grad
+    keep = np.abs(values) > np.finfo(np.float64).eps * jtj.shape[0] * np.max(np.abs(values))
+    return float(np.sum(along[keep] ** 2 / values[keep]))
+
+
+def _trial(
+    residual: Any, exact: ResidualAndJacobian | None, theta: np.ndarray
+) -> tuple[float, tuple[np.ndarray, ...]] | None:
+    """The cost and residual at a trial ``theta`` (with the Jacobian where ``exact`` gives it),
+    or None where it does not exist: an overflow, or a residual that is not finite."""
+    try:
+        with np.errstate(all="ignore"):
+            evaluated = (residual(theta),) if exact is None else exact(theta)
+            # A sum of squares is finite exactly where every term is (or it overflows: a
+            # trial that could not lower the cost anyway).
+            cost = float(evaluated[0] @ evaluated[0])
+    except (OverflowError, ZeroDivisionError, FloatingPointError):
+        return None
+    return (cost, evaluated) if math.isfinite(cost) else None
 
 
 def log_limits(bounds: SearchRange, size: int) -> tuple[np.ndarray, np.ndarray]:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -80,3 +82,38 @@ def test_the_exact_jacobian_polishes_to_the_same_estimate(window, circuit, model
     assert cost_e <= cost_d * (1 + 1e-8)
     spread = np.sqrt(cost_d / r_d.size * np.diag(np.linalg.inv(jac_d.T @ jac_d)))
     assert np.all(np.abs(theta_e - theta_d) < 0.05 * spread)
+
+
+def test_a_direction_the_residual_does_not_see_is_left_where_it_was():
+    # An exactly flat cost along theta[1] (J'J singular), as Lf under a constant field
+    # voltage nearly is: the polish solves the rest and leaves theta[1] alone.
+    t = np.linspace(0.0, 1.0, 200)
+    y = 2.0 * np.exp(-1.5 * t)
+
+    def residual(theta):
+        return y - theta[0] * np.exp(-theta[2] * t)
+
+    theta, r, jac = levenberg_marquardt(residual, np.array([1.0, 0.3, 1.0]))
+    assert theta[1] == 0.3
+    np.testing.assert_allclose(theta[[0, 2]], [2.0, 1.5], rtol=1e-6)
+    assert np.all(jac[:, 1] == 0.0)
+
+
+def test_a_trial_that_overflows_is_rejected_and_the_polish_goes_on():
+    # From theta = 0.3 the Gauss-Newton step runs to the upper limit 2, where
+    # exp(1200 t) overflows: those trials are refused, not kept, no warning escapes, and
+    # the shorter steps that follow reach 0.5.
+    t = np.linspace(0.0, 1.0, 50)
+    finite = []
+
+    def residual(theta):
+        r = np.exp((theta[0] - 0.5) * 800 * t) - 1.0
+        finite.append(bool(np.all(np.isfinite(r))))
+        return r
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        theta, r, _ = levenberg_marquardt(residual, np.array([0.3]), upper=np.array([2.0]))
+    assert not all(finite)
+    assert np.all(np.isfinite(r))
+    assert theta[0] == pytest.approx(0.5, rel=1e-9)
