@@ -260,12 +260,21 @@ class WindingProblem:
         )  # fmt: skip
         if theta.size == core:
             return out, jac, normal[:, :core], normal[:, core]
+        jtj = np.empty((theta.size, theta.size))
+        grad = np.empty(theta.size)
+        jtj[:core, :core] = normal[:, :core]
+        grad[:core] = normal[:, core]
         for j in range(core, theta.size):
             h = 1e-6 * max(abs(theta[j]), 1e-3)
             up = theta.copy()
             up[j] += h
-            jac[:, j] = (self.residual(up) - out) / h
-        return out, jac, jac.T @ jac, jac.T @ out
+            column = (self.residual(up) - out) / h
+            jac[:, j] = column
+            # Products with a contiguous column (BLAS over the tall J' J takes longer).
+            jtj[j, :j] = jtj[:j, j] = column @ jac[:, :j]
+            jtj[j, j] = column @ column
+            grad[j] = column @ out
+        return out, jac, jtj, grad
 
     def evaluate(
         self,
