@@ -107,7 +107,7 @@ def levenberg_marquardt(
             except np.linalg.LinAlgError:
                 damping *= 10
                 continue
-            trial = np.clip(theta + step, lo, hi)
+            trial = np.minimum(np.maximum(theta + step, lo), hi)
             outcome = _trial(residual, exact, trial)
             if outcome is None:
                 damping *= 10
@@ -120,7 +120,10 @@ def levenberg_marquardt(
         if not improved:
             break
         relative_gain = (cost - cost_trial) / max(cost, 1e-300)
-        moved = float(np.max(np.abs(trial - theta) / np.maximum(np.abs(theta), 1.0)))
+        moved = max(
+            abs(t - th) / max(abs(th), 1.0)
+            for t, th in zip(trial.tolist(), theta.tolist(), strict=True)
+        )
         theta, r, cost = trial, evaluated[0], cost_trial
         if exact is not None:
             _, jac, jtj, grad = evaluated
@@ -146,6 +149,10 @@ def _normal_equations(jac: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.nd
     return jtj, jac.T @ r
 
 
+#: Machine epsilon: lstsq's default cutoff is this times the matrix's size, relative.
+_EPS = float(np.finfo(np.float64).eps)
+
+
 def _gauss_newton_gain(jtj: np.ndarray, grad: np.ndarray) -> float:
     """``grad' pinv(J'J) grad``: how much the undamped step would lower the cost at best.
 
@@ -158,11 +165,13 @@ def _gauss_newton_gain(jtj: np.ndarray, grad: np.ndarray) -> float:
         values, vectors = np.linalg.eigh(jtj)
     except np.linalg.LinAlgError:
         return math.inf
-    if not np.all(np.isfinite(values)):
+    # A handful of parameters: Python floats beat numpy's per-call overhead.
+    lam = values.tolist()
+    if not all(math.isfinite(v) for v in lam):
         return math.inf  # as lstsq, which fails on them: no verdict, take a step
-    along = vectors.T @ grad
-    keep = np.abs(values) > np.finfo(np.float64).eps * jtj.shape[0] * np.max(np.abs(values))
-    return float(np.sum(along[keep] ** 2 / values[keep]))
+    cutoff = _EPS * len(lam) * max(abs(lam[0]), abs(lam[-1]))  # eigh sorts them
+    along = (grad @ vectors).tolist()
+    return float(sum(g * g / v for g, v in zip(along, lam, strict=True) if abs(v) > cutoff))
 
 
 def _trial(
