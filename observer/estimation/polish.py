@@ -56,13 +56,17 @@ def levenberg_marquardt(
     start: tuple[np.ndarray, np.ndarray] | None = None,
     fixed_jacobian: bool = False,
     residual_and_jacobian: ResidualAndJacobian | None = None,
+    jacobian_on_trials: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Minimise ``|residual(theta)|^2``; return ``theta``, residual and Jacobian there.
 
     Sensitivities come from ``residual_and_jacobian`` where the caller has
     them (:meth:`~observer.estimation.problem.WindingProblem.residual_and_jacobian`:
     exact, in the residual's own pass; every trial step evaluates it, and an
-    accepted one keeps its Jacobian), else from :func:`jacobian` (forward
+    accepted one keeps its Jacobian; without ``jacobian_on_trials`` a trial
+    takes ``residual`` alone and an accepted step then
+    ``residual_and_jacobian``: for a Jacobian with costly columns, which a
+    rejected trial would waste), else from :func:`jacobian` (forward
     differences, one residual per parameter after every accepted step). Steps
     are kept inside ``[lower, upper]`` (the swarm's search range): in a window
     that does not identify a parameter the cost is flat along it, and an
@@ -108,7 +112,7 @@ def levenberg_marquardt(
                 damping *= 10
                 continue
             trial = np.minimum(np.maximum(theta + step, lo), hi)
-            outcome = _trial(residual, exact, trial)
+            outcome = _trial(residual, exact if jacobian_on_trials else None, trial)
             if outcome is None:
                 damping *= 10
                 continue
@@ -125,8 +129,11 @@ def levenberg_marquardt(
             for t, th in zip(trial.tolist(), theta.tolist(), strict=True)
         )
         theta, r, cost = trial, evaluated[0], cost_trial
-        if exact is not None:
+        if exact is not None and jacobian_on_trials:
             _, jac, jtj, grad = evaluated
+        elif exact is not None:
+            r, jac, jtj, grad = exact(theta)
+            cost = float(r @ r)
         elif fixed_jacobian:
             grad = jac.T @ r
         else:

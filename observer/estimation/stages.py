@@ -235,6 +235,9 @@ def polish_stage(
         theta, resid, jac = levenberg_marquardt(
             problem.residual, theta, lower=lower, upper=upper, max_iterations=max_iterations,
             residual_and_jacobian=problem.residual_and_jacobian,
+            # A fitted shift's or lag's column costs the moments of another shift: not on
+            # trials that may be rejected.
+            jacobian_on_trials=not (problem.fit_shift or problem.fit_lag),
         )  # fmt: skip
     else:
         resid = problem.residual(theta)

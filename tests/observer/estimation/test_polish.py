@@ -64,14 +64,16 @@ def test_the_exact_jacobian_is_the_central_difference(window, circuit, model):
 
 @pytest.mark.parametrize("circuit", ["field", "armature"])
 @pytest.mark.parametrize("model", ["hold", "smooth"])
-def test_the_exact_jacobian_polishes_to_the_same_estimate(window, circuit, model):
+@pytest.mark.parametrize("on_trials", [True, False])
+def test_the_exact_jacobian_polishes_to_the_same_estimate(window, circuit, model, on_trials):
     problem, (lower, upper) = _problem(window, circuit, model)
     theta0 = _start(problem, circuit)
     kw = dict(lower=lower, upper=upper)
     by_differences = levenberg_marquardt(problem.residual, theta0.copy(), **kw)
     exact = levenberg_marquardt(
-        problem.residual, theta0.copy(), residual_and_jacobian=problem.residual_and_jacobian, **kw
-    )
+        problem.residual, theta0.copy(), residual_and_jacobian=problem.residual_and_jacobian,
+        jacobian_on_trials=on_trials, **kw,
+    )  # fmt: skip
     theta_d, r_d, jac_d = by_differences
     theta_e, r_e, _ = exact
     cost_d, cost_e = float(r_d @ r_d), float(r_e @ r_e)
