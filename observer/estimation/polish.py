@@ -93,21 +93,29 @@ def levenberg_marquardt(
         jtj, grad = _normal_equations(jac, r)
     cost = float(r @ r)
     damping = 1e-3
-    diagonal = np.diag_indices(theta.size)
     for _ in range(max_iterations):
-        curvature = np.maximum(np.diag(jtj), 1e-300)
+        # A parameter on its limit whose descent points outwards stays there (active set):
+        # a step computed with it free and then clipped overshoots the others.
+        free = ~(((theta >= hi) & (grad < 0)) | ((theta <= lo) & (grad > 0)))
+        if not free.any():
+            break
+        jtj_free = jtj[np.ix_(free, free)]
+        grad_free = grad[free]
+        curvature = np.maximum(np.diag(jtj_free), 1e-300)
+        diagonal = np.diag_indices(jtj_free.shape[0])
         # What the undamped step would gain at best (Gauss-Newton): nothing worth a
         # residual means theta is the minimum already (a refit starting on its
         # optimum), where the damped trials below would fail one after another.
-        if _gauss_newton_gain(jtj, grad) < rtol * cost:
+        if _gauss_newton_gain(jtj_free, grad_free) < rtol * cost:
             break
         improved = False
         for _ in range(12):
             # Marquardt's scaling: damp each direction by its own curvature.
-            a = jtj.copy()
+            a = jtj_free.copy()
             a[diagonal] += damping * curvature
             try:
-                step = -np.linalg.solve(a, grad)
+                step = np.zeros(theta.size)
+                step[free] = -np.linalg.solve(a, grad_free)
             except np.linalg.LinAlgError:
                 damping *= 10
                 continue

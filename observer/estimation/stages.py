@@ -213,7 +213,11 @@ def settled_stage(
     residual = fit.point.residual
     cost = float(residual @ residual)
     grad = fit.jacobian.T @ residual
-    gain = float(grad @ np.linalg.lstsq(fit.jacobian.T @ fit.jacobian, grad, rcond=None)[0])
+    # What a step could gain where it can go: not past a limit the fit rests on.
+    lower, upper = problem.limits(box)
+    free = ~(((fit.theta >= upper) & (grad < 0)) | ((fit.theta <= lower) & (grad > 0)))
+    jac, grad = fit.jacobian[:, free], grad[free]
+    gain = float(grad @ np.linalg.lstsq(jac.T @ jac, grad, rcond=None)[0]) if grad.size else 0.0
     rms = math.sqrt(cost / max(residual.size, 1))
     return (start, fit) if rms <= rms_limit and gain <= SETTLED_RTOL * cost else None
 
