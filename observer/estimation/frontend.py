@@ -262,22 +262,13 @@ def unknown_mismatch(
     mismatch alone, its gain and phase away from zero frequency. The window is
     mirror-extended as in :func:`apply_relative`.
     """
-    return unknown_mismatches(v, dt, (pair,))[0]
-
-
-def unknown_mismatches(
-    v: np.ndarray, dt: float, pairs: tuple[tuple[str, str], ...]
-) -> list[np.ndarray]:
-    """:func:`unknown_mismatch` for each of ``pairs``, from one spectrum of ``v``."""
     n = v.shape[0]
     if n < 4:
-        return [np.zeros(n) for _ in pairs]
+        return np.zeros(n)
     ext = np.concatenate([v, v[-2:0:-1]])
-    spectrum = np.fft.rfft(ext)
-    return [
-        np.fft.irfft(spectrum * _mismatch_shape(ext.shape[0], float(dt), pair), ext.shape[0])[:n]
-        for pair in pairs
-    ]
+    shape = _mismatch_shape(ext.shape[0], float(dt), pair)
+    out: np.ndarray = np.fft.irfft(np.fft.rfft(ext) * shape, ext.shape[0])[:n]
+    return out
 
 
 def mismatch_response(pair: tuple[str, str], dt: float) -> Callable[[int], np.ndarray]:

@@ -811,22 +811,29 @@ def smooth_moments(v: np.ndarray, segments: Segments, shift: float = 0.0) -> np.
     x = np.asarray(v, dtype=np.float64)
     for st, en in zip(segments.starts[~short], segments.ends[~short], strict=True):
         m = int(en) - int(st) + 1
-        seg = x[st : en + 1]
-        if m >= HALF_SAMPLE_MIRROR:
-            # A long segment is mirrored about the half sample past each end: 2m samples, a
-            # fast FFT for a window of round length (2000 samples: 4000), where mirrored about
-            # its end samples 3998 = 2 * 1999 took ten times as long.
-            ext = np.concatenate([seg, seg[::-1]])
-        else:
-            ext = np.concatenate([seg, seg[-2:0:-1]])
-        n = ext.shape[0]
-        # The moments are real: half the spectrum (the response of -w is the conjugate of w's).
-        spectrum = np.fft.rfft(ext)
-        if shift != 0.0:
-            spectrum = spectrum * np.exp(1j * 2.0 * np.pi * np.fft.rfftfreq(n) * shift)
+        spectrum, n = _mirrored_spectrum(x[st : en + 1], shift)
         moments = np.fft.irfft(spectrum[None, :] * _legendre_responses(n), n, axis=1)
         mu[st:en, :] = moments[:, : m - 1].T
     return mu
+
+
+def _mirrored_spectrum(seg: np.ndarray, shift: float) -> tuple[np.ndarray, int]:
+    """Half the spectrum of a segment extended by its mirror image, read ``shift`` periods
+    late (the moments are real: the response of -w is the conjugate of w's), and the
+    extension's length.
+
+    A long segment (:data:`HALF_SAMPLE_MIRROR`) is mirrored about the half sample past each
+    end: 2m samples, a fast FFT for a window of round length (2000 samples: 4000), where
+    mirrored about its end samples 3998 = 2 * 1999 took ten times as long.
+    """
+    if seg.shape[0] >= HALF_SAMPLE_MIRROR:
+        ext = np.concatenate([seg, seg[::-1]])
+    else:
+        ext = np.concatenate([seg, seg[-2:0:-1]])
+    spectrum = np.fft.rfft(ext)
+    if shift != 0.0:
+        spectrum = spectrum * np.exp(1j * 2.0 * np.pi * np.fft.rfftfreq(ext.shape[0]) * shift)
+    return spectrum, ext.shape[0]
 
 
 def smooth_moments_through(
@@ -856,15 +863,7 @@ def smooth_moments_through(
             out += cubic_moments(filtered, few, shift)
     for st, en in zip(segments.starts[~short], segments.ends[~short], strict=True):
         m = int(en) - int(st) + 1
-        seg = x[st : en + 1]
-        if m >= HALF_SAMPLE_MIRROR:
-            ext = np.concatenate([seg, seg[::-1]])
-        else:
-            ext = np.concatenate([seg, seg[-2:0:-1]])
-        n = ext.shape[0]
-        spectrum = np.fft.rfft(ext)
-        if shift != 0.0:
-            spectrum = spectrum * np.exp(1j * 2.0 * np.pi * np.fft.rfftfreq(n) * shift)
+        spectrum, n = _mirrored_spectrum(x[st : en + 1], shift)
         legendre = _legendre_responses(n)
         for out, response in zip(outs, responses, strict=True):
             moments = np.fft.irfft((spectrum * response(n))[None, :] * legendre, n, axis=1)

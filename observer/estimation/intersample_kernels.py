@@ -80,20 +80,30 @@ EMF_HELD = 2
 
 
 @njit(nogil=True, cache=True, fastmath={"contract"})
+def _horner3(
+    p0: np.ndarray, p1: np.ndarray, p2: np.ndarray, x: float
+) -> tuple[float, float, float]:
+    """Three polynomials of the same degree (coefficients from the constant up) at ``x``,
+    by Horner's rule, without divisions."""
+    last = p0.shape[0] - 1
+    v0 = p0[last]
+    v1 = p1[last]
+    v2 = p2[last]
+    for n in range(last - 1, -1, -1):
+        v0 = v0 * x + p0[n]
+        v1 = v1 * x + p1[n]
+        v2 = v2 * x + p2[n]
+    return v0, v1, v2
+
+
+@njit(nogil=True, cache=True, fastmath={"contract"})
 def moment_coefficients(
     resistance: float, inductance: float, dt: float
 ) -> tuple[float, float, float, float]:
     """``(a, c_0, c_1, c_2)`` of the exact update for period ``dt`` (see the module notes)."""
     x = resistance * dt / inductance
     if x < _SERIES_X:
-        last = _SERIES_TERMS - 1
-        w0 = _W0[last]
-        w1 = _W1[last]
-        w2 = _W2[last]
-        for n in range(last - 1, -1, -1):
-            w0 = w0 * x + _W0[n]
-            w1 = w1 * x + _W1[n]
-            w2 = w2 * x + _W2[n]
+        w0, w1, w2 = _horner3(_W0, _W1, _W2, x)
         a = math.exp(-x)
     else:
         om = -math.expm1(-x)
@@ -128,14 +138,7 @@ def moment_coefficient_slopes(
     """
     x = resistance * dt / inductance
     if x < _SERIES_X:
-        last = _SERIES_TERMS - 2
-        d0 = _W0_SLOPE[last]
-        d1 = _W1_SLOPE[last]
-        d2 = _W2_SLOPE[last]
-        for n in range(last - 1, -1, -1):
-            d0 = d0 * x + _W0_SLOPE[n]
-            d1 = d1 * x + _W1_SLOPE[n]
-            d2 = d2 * x + _W2_SLOPE[n]
+        d0, d1, d2 = _horner3(_W0_SLOPE, _W1_SLOPE, _W2_SLOPE, x)
         a = math.exp(-x)
     else:
         # The closed forms of moment_coefficients, differentiated (d om/dx = a, dy/dx = -y^2).

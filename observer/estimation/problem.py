@@ -440,6 +440,16 @@ def alias_pieces(n_intervals: int) -> list[slice]:
     return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
 
 
+def _without_edges(valid: np.ndarray, edge: int) -> np.ndarray:
+    """``valid`` with ``edge`` samples at each end (at most a quarter of the window) left
+    out: what filtering the mirror-extended window spoils."""
+    edge = min(edge, valid.shape[0] // 4)
+    out = valid.copy()
+    out[:edge] = False
+    out[valid.shape[0] - edge :] = False
+    return out
+
+
 def make_problem(
     voltage: np.ndarray,
     current: np.ndarray,
@@ -483,19 +493,13 @@ def make_problem(
         voltage = apply_relative(voltage, dt, fe_v, fe_i)
         if emf is not None:
             emf = apply_relative(emf, dt, fe_i, fe_i)
-        edge = min(edge_samples(fe_v, fe_i, dt), voltage.shape[0] // 4)
-        valid = valid.copy()
-        valid[:edge] = False
-        valid[voltage.shape[0] - edge :] = False
+        valid = _without_edges(valid, edge_samples(fe_v, fe_i, dt))
         model = "smooth"
     applied = applied_mismatch(mismatch) if front_ends is None and model == "smooth" else 0.0
     if applied:
         voltage = voltage + applied * unknown_mismatch(voltage, dt)
         pair = [parse_front_end(text) for text in UNKNOWN_MISMATCH]
-        edge = min(edge_samples(pair[0], pair[1], dt), voltage.shape[0] // 4)
-        valid = valid.copy()
-        valid[:edge] = False
-        valid[voltage.shape[0] - edge :] = False
+        valid = _without_edges(valid, edge_samples(pair[0], pair[1], dt))
     if front_ends is not None and model == "switched" and front_ends[0] != front_ends[1]:
         # A filtered jump settles over the voltage filter's response; where the
         # current's front end differs, the samples in it do not relate to the
