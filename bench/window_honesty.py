@@ -20,6 +20,7 @@ Takes ~20 s per recording on a quiet 2-core machine.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from dataclasses import dataclass
 
@@ -93,7 +94,8 @@ def run_case(
     from observer.simulation.converter_drive import simulate_converter
 
     motor = MOTORS[case.motor]
-    from observer.estimation.frontend import applied_mismatch, winding_front_ends
+    from observer.estimation.estimate import with_learned_mismatch
+    from observer.estimation.frontend import winding_front_ends
 
     drive = _drive(case.drive)
     if va_offset:
@@ -114,16 +116,15 @@ def run_case(
     # Untold channels that differ like the commonest pair: learned and corrected for, as
     # `dcobserver estimate` does (the daemon learns it over its first windows).
     learned = {"field": whole_f.mismatch_size, "armature": whole_a.mismatch_size}
-    if applied_mismatch(learned["field"]):
-        whole_f = estimate_field(
-            sig["vf"], sig["if"], dt, mismatch=learned["field"],
-            shift=whole_f.mismatch_shift, **kw,
-        )  # fmt: skip
-    if applied_mismatch(learned["armature"]):
-        whole_a = estimate_armature(
-            sig["va"], sig["ia"], sig["if"], sig["omega"], dt, mismatch=learned["armature"],
-            shift=whole_a.mismatch_shift, **kw,
-        )  # fmt: skip
+    whole_f = with_learned_mismatch(
+        whole_f, functools.partial(estimate_field, sig["vf"], sig["if"], dt, **kw)
+    )
+    whole_a = with_learned_mismatch(
+        whole_a,
+        functools.partial(
+            estimate_armature, sig["va"], sig["ia"], sig["if"], sig["omega"], dt, **kw
+        ),
+    )
     truth = np.array([getattr(motor, PARAMETERS[name][2]) for name in NAMES])
     quality = QualityConfig()
     limit = np.array([*quality.limits("field").values(), *quality.limits("armature").values()])

@@ -9,6 +9,7 @@ settings (and optional search ranges) of an
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -79,17 +80,29 @@ def estimate_recording(
             "front_ends": winding_front_ends(chain, circuit),
         }
         try:
-            out[circuit] = _estimate(circuit, rec, rng, cfg, common, chain_kw)
-            est = out[circuit]
-            if applied_mismatch(est.mismatch_size):
-                # Untold channels that differ like the commonest pair: once more with the
-                # voltage corrected for it, from the delay that goes with it.
-                rng = np.random.default_rng([cfg.seed, CIRCUITS.index(circuit)])
-                chain_kw |= {"mismatch": est.mismatch_size, "shift": est.mismatch_shift}
-                out[circuit] = _estimate(circuit, rec, rng, cfg, common, chain_kw)
+            first = _estimate(circuit, rec, rng, cfg, common, chain_kw)
+            out[circuit] = with_learned_mismatch(
+                first,
+                lambda circuit=circuit, chain_kw=chain_kw, **kw: _estimate(
+                    circuit, rec, np.random.default_rng([cfg.seed, CIRCUITS.index(circuit)]),
+                    cfg, common, chain_kw | kw,
+                ),
+            )  # fmt: skip
         except EstimationError as exc:
             raise EstimationError(f"{prefix}{circuit} circuit: {exc}") from None
     return out
+
+
+def with_learned_mismatch(
+    first: CircuitEstimate, refit: Callable[..., CircuitEstimate]
+) -> CircuitEstimate:
+    """``first``, or where its untold channels differ like the commonest pair
+    (:func:`~observer.estimation.frontend.applied_mismatch` of its ``mismatch_size``), the
+    estimate once more by ``refit(mismatch=..., shift=...)``: the voltage corrected for the
+    mismatch, from the delay that goes with it."""
+    if not applied_mismatch(first.mismatch_size):
+        return first
+    return refit(mismatch=first.mismatch_size, shift=first.mismatch_shift)
 
 
 def _estimate(

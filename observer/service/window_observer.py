@@ -117,7 +117,8 @@ class _ChainState:
     shifts: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     mismatches: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
 
-    def record(self, model: str, est: CircuitEstimate) -> None:
+    def record(self, est: CircuitEstimate) -> None:
+        model = est.intersample
         self.votes[model] += 1
         if est.shift_std > 0 and math.isfinite(est.shift_std):
             self.shifts.setdefault(model, []).append((est.shift_samples, est.shift_std))
@@ -499,7 +500,7 @@ class SlidingWindowObserver:
             return
         if not est.describes_window:
             return
-        state.record(est.intersample, est)
+        state.record(est)
         if sum(state.votes.values()) >= self.config.chain_windows:
             state.decide()
             corrected = applied_mismatch(state.mismatch)
