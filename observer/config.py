@@ -317,7 +317,8 @@ class TrackerConfig:
     min_change_R: float = dataclasses.field(default=0.01, metadata={"check": _positive})
     min_change_L: float = dataclasses.field(default=0.05, metadata={"check": _positive})
     min_change_K: float = dataclasses.field(default=0.01, metadata={"check": _positive})
-    # Log-likelihood ratio (CUSUM) that confirms a change.
+    # Log-likelihood ratio (of a step against none, observer.service.changes) that
+    # confirms a change.
     change_threshold: float = dataclasses.field(default=10.0, metadata={"check": _positive})
     # Longest wait (s) after a change is confirmed for a window that shows its size.
     change_wait_s: float = dataclasses.field(default=3.0, metadata={"check": _positive})
