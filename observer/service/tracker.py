@@ -132,6 +132,11 @@ class Model(Protocol):
         """The state's change per unit step (log units) of the parameter at once."""
         ...
 
+    def forget_rate(self, state: Gaussian) -> None:
+        """Back to the prior on whatever the state holds beside the level (a tracked rate
+        shown wrong); the level and its variance stay."""
+        ...
+
     def observe(
         self, state: Gaussian, lag_s: float, losses: Sequence[tuple[float, float]]
     ) -> tuple[np.ndarray, float]:
@@ -163,6 +168,9 @@ class _Linear:
         direction = np.zeros(state.x.size)
         direction[0] = 1.0  # the level; a rate does not jump
         return direction
+
+    def forget_rate(self, state: Gaussian) -> None:
+        return None
 
     def observe(
         self, state: Gaussian, lag_s: float, losses: Sequence[tuple[float, float]]
@@ -231,6 +239,12 @@ class Trend(_Linear):
         state.P[0, :] = 0.0
         state.P[:, 0] = 0.0
         state.P[0, 0] = r
+
+    def forget_rate(self, state: Gaussian) -> None:
+        state.x[1] = 0.0
+        state.P[1, :] = 0.0
+        state.P[:, 1] = 0.0
+        state.P[1, 1] = self.rate_std**2
 
 
 class Thermal:
@@ -303,6 +317,9 @@ class Thermal:
     def step_direction(self, state: Gaussian) -> np.ndarray:
         # As :meth:`shift`: a step moves the cold value and the rise with the present one.
         return np.array([1.0, float(state.x[1]), float(state.x[2])])
+
+    def forget_rate(self, state: Gaussian) -> None:
+        return None  # the rate follows the losses: nothing of its own to forget
 
     def observe(
         self, state: Gaussian, lag_s: float, losses: Sequence[tuple[float, float]]
@@ -427,6 +444,9 @@ class _Transition:
     before_ns: int  # ... at this time
     # (window end ns, log fit, its variance alone) of the latest windows with evidence
     recent: deque[tuple[int, float, float]] = field(default_factory=lambda: deque(maxlen=3))
+    # What the last windows with evidence before the change measured: (log fit,
+    # variance), None if there were none.
+    fits_before: tuple[float, float] | None = None
 
 
 @dataclass
@@ -440,6 +460,19 @@ class _Track:
     # (window end ns, state before that window's update) of the latest windows: a
     # change is measured from the state before it.
     history: deque[tuple[int, Gaussian]] = field(default_factory=lambda: deque(maxlen=64))
+    # (window end ns, log fit, its variance alone) of the latest windows with evidence.
+    fits: deque[tuple[int, float, float]] = field(default_factory=lambda: deque(maxlen=64))
+
+    def fits_before(self, end_ns: int, start_ns: int, count: int) -> tuple[float, float] | None:
+        """The latest ``count`` fits of windows that ended in ``[start_ns, end_ns)``, weighed
+        by their precision, with the variance of the best alone (overlapping windows are
+        correlated: together worth no more than it); None if there were none."""
+        kept = [(z, v) for t, z, v in self.fits if start_ns <= t < end_ns][-count:]
+        if not kept:
+            return None
+        weights = [1.0 / v for _, v in kept]
+        z = sum(w * zi for w, (zi, _) in zip(weights, kept, strict=True)) / sum(weights)
+        return z, min(v for _, v in kept)
 
     def before(self, t_ns: int) -> tuple[int, Gaussian]:
         """The state before the first window that ended at or after ``t_ns``, and that time.
@@ -612,6 +645,7 @@ class MotorTracker:
             row, predicted = track.model.observe(track.state, self._fit_lag(name), losses)
             nu, s = z - predicted, float(row @ track.state.P @ row + r)
             track.history.append((t_ns, track.state.copy()))
+            track.fits.append((t_ns, z, alone))
             outlier = self._outlier(name, nu, s - r + alone)
             gain = None if outlier else track.state.P @ row / s
             alarm = track.test.observe(t_ns, row, nu, s, gain)
@@ -622,8 +656,12 @@ class MotorTracker:
                 # ending ONSET_MARGIN_HOPS before it is the level before the change.
                 hop_ns = self.window_s / self.overlap * 1e9
                 clean_ns = alarm.started_ns - int(round(ONSET_MARGIN_HOPS * hop_ns)) + 1
+                # What the windows measured before it: the last window's worth of them.
+                horizon_ns = int(round(CHANGE_HORIZON_S * 1e9))
+                count = math.ceil(self.overlap)
+                fits_before = track.fits_before(clean_ns, clean_ns - horizon_ns, count)
                 clean_ns, before = track.before(clean_ns)
-                tr = _Transition(name, alarm, before, t_ns, clean_ns)
+                tr = _Transition(name, alarm, before, t_ns, clean_ns, fits_before=fits_before)
                 tr.recent = deque(maxlen=self.settle_windows)
                 tr.recent.append((t_ns, z, alone))
                 self.transitions[circuit] = tr
@@ -831,6 +869,26 @@ class MotorTracker:
                 self.tracks[name].test.reset()
                 status[name] = "held"
             return
+        if tr.fits_before is not None and abs(d) >= 0.5 * m:
+            z_fits, var_fits = tr.fits_before
+            d_fits = z - z_fits
+            if abs(d_fits) < 0.5 * m and d * d >= self.config.gate_sigma**2 * (alone + var_fits):
+                # The windows after the "change" measure what those before it did: it is the
+                # tracked state that had moved away from them (a rate taken up from a step
+                # never confirmed carries it on), not the motor. Re-start there, quietly.
+                track.state = before.copy()
+                track.model.shift(track.state, d, r)
+                track.model.forget_rate(track.state)
+                self.counts["drift_corrected"] = self.counts.get("drift_corrected", 0) + 1
+                step.notes.append(
+                    f"{tr.parameter}: the tracked value had moved {100 * math.expm1(-d):+.1f} % "
+                    f"away from what the windows measure, which did not change; re-started "
+                    f"at them (no change of the motor)"
+                )
+                for name in names:
+                    self.tracks[name].test.reset()
+                status[tr.parameter] = "ok"
+                return
         if abs(d) >= 0.5 * m and d * d < self.config.gate_sigma**2 * var_d:
             # Large but not yet sure (a weak window): wait for a better one.
             if (t_ns - tr.detected_ns) / 1e9 <= self.config.change_wait_s:

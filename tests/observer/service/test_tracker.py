@@ -420,3 +420,27 @@ def test_a_step_after_a_stretch_without_evidence_is_confirmed_in_time():
     assert len(events) == 1, events
     assert events[0].t_detected_ns / 1e9 - step_at <= 2.0
     assert abs(events[0].relative - 0.03) < 0.01
+
+
+def test_a_tracker_that_drifted_from_its_windows_re_converges_without_a_change():
+    """A rate of change the tracker took up from a step it never confirmed carries the
+    tracked Ra on while no window identifies it (the drive at rest). When windows come
+    back, the step test sees a fall; but they measure what the windows before the stretch
+    did: the change is the tracker's, not the motor's. No event; a note, and the state
+    back at the windows with its rate forgotten."""
+    fits = Fits(5)
+    trk = _tracker()
+    changes, notes = [], []
+    for i in range(300):
+        t = (i + 1) * 0.1
+        if i == 100:  # the rate an unconfirmed step left behind: 20 %/min, sure of itself
+            state = trk.tracks["Ra"].state
+            state.x[1] = 0.20 / 60.0
+            state.P[1, 1] = (0.01 / 60.0) ** 2
+        window = {"Ra": fits(TRUTH)["Ra"]} if not 10.5 < t < 16.0 else {}
+        step = trk.step(int(round(t * 1e9)), window)
+        changes += step.changes
+        notes += step.notes
+    assert changes == []
+    assert any("no change of the motor" in n for n in notes), notes
+    assert trk.value("Ra") == pytest.approx(TRUTH["Ra"], rel=0.003)
