@@ -38,9 +38,11 @@ its state.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 
 @dataclass(frozen=True)
@@ -77,55 +79,65 @@ class StepGlr:
         confirmed by then is left to the tracker.
     window_s : float
         Length of the windows whose fits are observed (s).
+    hop_s : float
+        Time between windows (s): with the horizon, how many onsets are kept.
 
     Call :meth:`predict` with every transition of the filter, :meth:`open` once
     per window (a step may have happened since the last), then :meth:`observe`
     for a window whose innovation the test takes, with the gain if the filter
-    took the window in.
+    took the window in. The onsets live in a ring of fixed size and one compiled
+    pass does each window's work for all of them (tens of microseconds a window
+    for every parameter).
     """
 
     def __init__(
-        self, shift: float, threshold: float, *, horizon_s: float, window_s: float
+        self, shift: float, threshold: float, *, horizon_s: float, window_s: float, hop_s: float
     ) -> None:
-        if not (shift > 0 and threshold > 0 and horizon_s > 0 and window_s > 0):
+        if not (shift > 0 and threshold > 0 and horizon_s > 0 and window_s > 0 and hop_s > 0):
             raise ValueError(
-                "shift, threshold, horizon_s and window_s must be > 0, got "
-                f"{shift}, {threshold}, {horizon_s}, {window_s}"
+                "shift, threshold, horizon_s, window_s and hop_s must be > 0, got "
+                f"{shift}, {threshold}, {horizon_s}, {window_s}, {hop_s}"
             )
         self.shift = shift
         self.threshold = threshold
         self.horizon_ns = int(round(horizon_s * 1e9))
         self.window_ns = int(round(window_s * 1e9))
+        self.capacity = math.ceil(horizon_s / hop_s - 1e-9) + 1
         self.level = 0.0  # the largest ratio as a fraction of the threshold (0: no evidence)
+        self._dim = 0
         self.reset()
 
     def reset(self) -> None:
         """Forget every onset (after a change, or when the state is reset)."""
-        self._onset = np.empty(0, dtype=np.int64)
-        self._mu = np.empty((0, 0))
-        self._eta = np.empty((0, 0))
-        self._d = np.empty(0)
-        self._c = np.empty(0)
+        self._count = 0  # onsets kept (the ring's first _count slots once filled)
+        self._next = 0  # the slot the next onset takes
+        self._onset = np.zeros(self.capacity, dtype=np.int64)
+        self._mu = np.zeros((self.capacity, max(self._dim, 1)))
+        self._eta = np.zeros_like(self._mu)
+        self._d = np.zeros(self.capacity)
+        self._c = np.zeros(self.capacity)
         self.level = 0.0
 
     def predict(self, transition: np.ndarray) -> None:
         """The filter's prediction ``x' = F x`` (linearised): both effects move with it."""
-        if self._onset.size:
-            self._mu = self._mu @ transition.T
-            self._eta = self._eta @ transition.T
+        if self._count and transition.shape == (self._dim, self._dim):
+            _glr_predict(self._mu, self._eta, self._count, np.ascontiguousarray(transition, float))
 
     def open(self, onset_ns: int, direction: np.ndarray, now_ns: int) -> None:
         """Test a step at ``onset_ns`` too: ``direction`` is the state's change per unit
-        step of the level; onsets before ``now_ns - horizon`` are dropped."""
-        keep = self._onset >= now_ns - self.horizon_ns
-        if self._onset.size and self._mu.shape[1] != direction.size:
-            keep[:] = False  # the state's shape changed: a new filter
-        self._onset = np.append(self._onset[keep], np.int64(onset_ns))
-        dim = direction.size
-        self._mu = np.vstack([self._mu[keep].reshape(-1, dim), direction[None, :]])
-        self._eta = np.vstack([self._eta[keep].reshape(-1, dim), np.zeros((1, dim))])
-        self._d = np.append(self._d[keep], 0.0)
-        self._c = np.append(self._c[keep], 0.0)
+        step of the level. ``now_ns`` is kept for symmetry with :meth:`observe`; onsets
+        beyond the horizon are no longer tested there."""
+        if direction.size != self._dim:  # a new filter
+            self._dim = direction.size
+            self.reset()
+        k = self._next
+        self._onset[k] = onset_ns
+        self._mu[k] = direction
+        self._eta[k] = 0.0
+        self._d[k] = 0.0
+        self._c[k] = 0.0
+        self._next = (k + 1) % self.capacity
+        self._count = min(self._count + 1, self.capacity)
 
     def observe(
         self,
@@ -138,23 +150,90 @@ class StepGlr:
         """Take one window's innovation (log units) and its variance; ``gain``: the
         filter's gain if it updated on it (None: it did not). An :class:`Alarm`
         once a step is confirmed."""
-        if not self._onset.size:
+        if not self._count:
             return None
-        share = np.clip((t_ns - self._onset) / self.window_ns, 0.0, 1.0)
-        rho = share * (self._mu @ row) - self._eta @ row
-        self._d += rho * (innovation / variance)
-        self._c += rho * rho / variance
-        if gain is not None:
-            self._eta += np.outer(rho, gain)
-        m = self.shift
-        c = np.maximum(self._c, 1e-300)
-        d = self._d
-        size = d / c
-        ratio = np.where(np.abs(size) >= m, 0.5 * d * size, m * np.abs(d) - 0.5 * m * m * c)
-        best = int(np.argmax(ratio))
-        self.level = max(float(ratio[best]), 0.0) / self.threshold
-        if ratio[best] < self.threshold:
+        best, ratio = _glr_observe(
+            self._onset, self._mu, self._eta, self._d, self._c, self._count,
+            t_ns, self.window_ns, t_ns - self.horizon_ns,
+            np.ascontiguousarray(row, float), innovation, variance,
+            np.zeros(self._dim) if gain is None else np.ascontiguousarray(gain, float),
+            gain is not None, self.shift,
+        )  # fmt: skip
+        self.level = max(ratio, 0.0) / self.threshold
+        if best < 0 or ratio < self.threshold:
             return None
-        direction = 1 if d[best] > 0 else -1
-        step = direction * max(abs(float(size[best])), m)
-        return Alarm(direction, int(self._onset[best]), step)
+        d = float(self._d[best])
+        direction = 1 if d > 0 else -1
+        return Alarm(
+            direction, int(self._onset[best]), direction * max(abs(d / self._c[best]), self.shift)
+        )
+
+
+@njit(nogil=True, cache=True)
+def _glr_predict(mu: np.ndarray, eta: np.ndarray, count: int, transition: np.ndarray) -> None:
+    """``mu = mu F'``, ``eta = eta F'`` over the first ``count`` rows, in place."""
+    dim = mu.shape[1]
+    a = np.empty(dim)
+    b = np.empty(dim)
+    for k in range(count):
+        for i in range(dim):
+            sa = 0.0
+            sb = 0.0
+            for j in range(dim):
+                sa += transition[i, j] * mu[k, j]
+                sb += transition[i, j] * eta[k, j]
+            a[i] = sa
+            b[i] = sb
+        for i in range(dim):
+            mu[k, i] = a[i]
+            eta[k, i] = b[i]
+
+
+@njit(nogil=True, cache=True)
+def _glr_observe(
+    onset: np.ndarray,
+    mu: np.ndarray,
+    eta: np.ndarray,
+    d: np.ndarray,
+    c: np.ndarray,
+    count: int,
+    t_ns: int,
+    window_ns: int,
+    oldest_ns: int,
+    row: np.ndarray,
+    innovation: float,
+    variance: float,
+    gain: np.ndarray,
+    updated: bool,
+    shift: float,
+) -> tuple[int, float]:
+    """One window for every onset: each one's signature ``rho`` and sums ``d``, ``C``
+    (and ``eta`` moved by the gain if the filter updated); the onset within the
+    horizon with the largest ratio, and that ratio (-1, -inf: none)."""
+    dim = mu.shape[1]
+    best = -1
+    best_ratio = -np.inf
+    for k in range(count):
+        share = min(max((t_ns - onset[k]) / window_ns, 0.0), 1.0)
+        seen = 0.0
+        taken = 0.0
+        for j in range(dim):
+            seen += row[j] * mu[k, j]
+            taken += row[j] * eta[k, j]
+        rho = share * seen - taken
+        d[k] += rho * (innovation / variance)
+        c[k] += rho * rho / variance
+        if updated:
+            for j in range(dim):
+                eta[k, j] += rho * gain[j]
+        if onset[k] < oldest_ns or c[k] <= 0.0:
+            continue
+        size = d[k] / c[k]
+        if abs(size) >= shift:
+            ratio = 0.5 * d[k] * size
+        else:
+            ratio = shift * abs(d[k]) - 0.5 * shift * shift * c[k]
+        if ratio > best_ratio:
+            best_ratio = ratio
+            best = k
+    return best, best_ratio

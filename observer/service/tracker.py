@@ -543,6 +543,7 @@ class MotorTracker:
                     config.change_threshold,
                     horizon_s=max(CHANGE_HORIZON_S, 2.0 * window_s),
                     window_s=window_s,
+                    hop_s=hop_s,
                 ),
             )
             for name in PARAMETERS

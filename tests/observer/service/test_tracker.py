@@ -220,7 +220,7 @@ def _glr_run(step: float, *, windows: int, seed: int) -> tuple[StepGlr, list, li
     at window 40, and the step test beside it; the alarms and the filter's levels."""
     rng = np.random.default_rng(seed)
     model = RandomWalk(2e-4)  # wanders 0.45 % a hop: the gain is ~0.6
-    glr = StepGlr(math.log1p(0.01), 10.0, horizon_s=10.0, window_s=0.1)
+    glr = StepGlr(math.log1p(0.01), 10.0, horizon_s=10.0, window_s=0.1, hop_s=0.1)
     state, alarms, levels = None, [], []
     for i in range(windows):
         t_ns = (i + 1) * 100_000_000
@@ -262,7 +262,7 @@ def test_step_test_stays_quiet_without_a_step_and_below_the_smallest_change():
         # A shift of a third of the smallest change: left to the tracker.
         assert _glr_run(0.003, windows=400, seed=seed)[1] == []
     with pytest.raises(ValueError):
-        StepGlr(0.0, 1.0, horizon_s=1.0, window_s=1.0)
+        StepGlr(0.0, 1.0, horizon_s=1.0, window_s=1.0, hop_s=1.0)
 
 
 def test_thermal_model_carries_the_resistance_between_informative_windows():
