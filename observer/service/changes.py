@@ -29,7 +29,7 @@ where ``|d / C| < m`` the ratio is the one at ``+-m``, ``m |d| - m^2 C / 2``.
 The largest ratio over the onsets of the last ``horizon`` seconds above
 ``threshold`` (log-likelihood units: ``e^threshold`` to one odds) confirms a
 change, and its onset dates it. Changes below ``m`` are left to the tracker to
-follow; the test's cost is a few array operations per window for all onsets.
+follow; one compiled pass a window does the work for all onsets.
 
 A small class; the tracker (:mod:`observer.service.tracker`) feeds it the
 filter's transitions and updates, and decides what a confirmed change does to
