@@ -123,10 +123,10 @@ class StepGlr:
         if self._count and transition.shape == (self._dim, self._dim):
             _glr_predict(self._mu, self._eta, self._count, np.ascontiguousarray(transition, float))
 
-    def open(self, onset_ns: int, direction: np.ndarray, now_ns: int) -> None:
+    def open(self, onset_ns: int, direction: np.ndarray) -> None:
         """Test a step at ``onset_ns`` too: ``direction`` is the state's change per unit
-        step of the level. ``now_ns`` is kept for symmetry with :meth:`observe`; onsets
-        beyond the horizon are no longer tested there."""
+        step of the level (onsets beyond the horizon are no longer tested in
+        :meth:`observe`; the ring keeps the latest)."""
         if direction.size != self._dim:  # a new filter
             self._dim = direction.size
             self.reset()

@@ -468,11 +468,7 @@ class _Track:
         by their precision, with the variance of the best alone (overlapping windows are
         correlated: together worth no more than it); None if there were none."""
         kept = [(z, v) for t, z, v in self.fits if start_ns <= t < end_ns][-count:]
-        if not kept:
-            return None
-        weights = [1.0 / v for _, v in kept]
-        z = sum(w * zi for w, (zi, _) in zip(weights, kept, strict=True)) / sum(weights)
-        return z, min(v for _, v in kept)
+        return _weighed(kept) if kept else None
 
     def before(self, t_ns: int) -> tuple[int, Gaussian]:
         """The state before the first window that ended at or after ``t_ns``, and that time.
@@ -484,6 +480,14 @@ class _Track:
                 return when, state.copy()
         assert self.state is not None and self.history
         return self.history[-1][0], self.history[-1][1].copy()
+
+
+def _weighed(fits: Sequence[tuple[float, float]]) -> tuple[float, float]:
+    """Fits ``(log value, variance alone)`` of overlapping windows weighed by their precision,
+    and the variance of the best alone: correlated, together they are worth no more."""
+    weights = [1.0 / v for _, v in fits]
+    z = sum(w * zi for w, (zi, _) in zip(weights, fits, strict=True)) / sum(weights)
+    return z, min(v for _, v in fits)
 
 
 @dataclass(frozen=True)
@@ -529,6 +533,7 @@ class MotorTracker:
     ) -> None:
         self.config = config
         self.window_s = window_s
+        self.hop_s = hop_s
         self.overlap = max(1.0, window_s / hop_s)
         self.settle_windows = max(3, 1 + math.ceil(SETTLE_S / hop_s - 1e-9))
         self.limits = dict(limits)
@@ -556,7 +561,9 @@ class MotorTracker:
         self._last_ns: int | None = None
         self._last_loss_w = 0.0
         self._losses: deque[tuple[float, float]] = deque(maxlen=256)  # (dt, loss) per hop
-        self.counts: dict[str, int] = {"changes": 0, "changes_not_borne_out": 0}
+        self.counts: dict[str, int] = {
+            "changes": 0, "changes_not_borne_out": 0, "drift_corrected": 0
+        }  # fmt: skip
 
     # ----------------------------------------------------------------- queries
 
@@ -617,7 +624,7 @@ class MotorTracker:
                 track.test.predict(track.model.predict(track.state, dt, loss))
                 # A step may have happened within the hop: test that onset too.
                 onset = t_ns - int(round(0.5 * dt * 1e9))
-                track.test.open(onset, track.model.step_direction(track.state), t_ns)
+                track.test.open(onset, track.model.step_direction(track.state))
         status: dict[str, str] = {}
         for circuit in ("field", "armature"):
             if circuit in self.transitions:
@@ -655,12 +662,10 @@ class MotorTracker:
                 # Windows ending before the onset hold no sample after the change, and the
                 # step test dates it within a hop or two: the state after the windows
                 # ending ONSET_MARGIN_HOPS before it is the level before the change.
-                hop_ns = self.window_s / self.overlap * 1e9
-                clean_ns = alarm.started_ns - int(round(ONSET_MARGIN_HOPS * hop_ns)) + 1
+                clean_ns = alarm.started_ns - int(round(ONSET_MARGIN_HOPS * self.hop_s * 1e9)) + 1
                 # What the windows measured before it: the last window's worth of them.
-                horizon_ns = int(round(CHANGE_HORIZON_S * 1e9))
                 count = math.ceil(self.overlap)
-                fits_before = track.fits_before(clean_ns, clean_ns - horizon_ns, count)
+                fits_before = track.fits_before(clean_ns, clean_ns - track.test.horizon_ns, count)
                 clean_ns, before = track.before(clean_ns)
                 tr = _Transition(name, alarm, before, t_ns, clean_ns, fits_before=fits_before)
                 tr.recent = deque(maxlen=self.settle_windows)
@@ -837,10 +842,8 @@ class MotorTracker:
             return
         del self.transitions[circuit]
         # The settled windows weighed by their precision (a weak one that shows the step
-        # must not size it); correlated, so together worth no more than the best alone.
-        weights = [1.0 / v for _, _, v in tr.recent]
-        z = sum(w * zi for w, (_, zi, _) in zip(weights, tr.recent, strict=True)) / sum(weights)
-        alone = min(v for _, _, v in tr.recent)
+        # must not size it).
+        z, alone = _weighed([(zi, v) for _, zi, v in tr.recent])
         first_ns = tr.recent[0][0]
         r = self.overlap * alone
         track = self.tracks[tr.parameter]
@@ -870,34 +873,23 @@ class MotorTracker:
                 self.tracks[name].test.reset()
                 status[name] = "held"
             return
+        # The windows after the "change" measuring what those before it did: it is the
+        # tracked state that had moved away from them (a rate taken up from a step never
+        # confirmed carries it on), not the motor.
+        drift = False
         if tr.fits_before is not None and abs(d) >= 0.5 * m:
             z_fits, var_fits = tr.fits_before
-            d_fits = z - z_fits
-            if abs(d_fits) < 0.5 * m and d * d >= self.config.gate_sigma**2 * (alone + var_fits):
-                # The windows after the "change" measure what those before it did: it is the
-                # tracked state that had moved away from them (a rate taken up from a step
-                # never confirmed carries it on), not the motor. Re-start there, quietly.
-                track.state = before.copy()
-                track.model.shift(track.state, d, r)
-                track.model.forget_rate(track.state)
-                self.counts["drift_corrected"] = self.counts.get("drift_corrected", 0) + 1
-                step.notes.append(
-                    f"{tr.parameter}: the tracked value had moved {100 * math.expm1(-d):+.1f} % "
-                    f"away from what the windows measure, which did not change; re-started "
-                    f"at them (no change of the motor)"
-                )
-                for name in names:
-                    self.tracks[name].test.reset()
-                status[tr.parameter] = "ok"
-                return
-        if abs(d) >= 0.5 * m and d * d < self.config.gate_sigma**2 * var_d:
+            drift = abs(z - z_fits) < 0.5 * m and d * d >= self.config.gate_sigma**2 * (
+                alone + var_fits
+            )
+        if not drift and abs(d) >= 0.5 * m and d * d < self.config.gate_sigma**2 * var_d:
             # Large but not yet sure (a weak window): wait for a better one.
             if (t_ns - tr.detected_ns) / 1e9 <= self.config.change_wait_s:
                 self.transitions[circuit] = tr
                 for name in names:
                     status[name] = "change"
                 return
-        if abs(d) < 0.5 * m or d * d < self.config.gate_sigma**2 * var_d:
+        if not drift and (abs(d) < 0.5 * m or d * d < self.config.gate_sigma**2 * var_d):
             self.counts["changes_not_borne_out"] += 1
             step.notes.append(
                 f"{tr.parameter}: a change was signalled but the windows after it differ by "
@@ -907,6 +899,19 @@ class MotorTracker:
         # From the state before the change (the windows across it may have bent its rate).
         track.state = before.copy()
         track.model.shift(track.state, d, r)
+        for name in names:
+            self.tracks[name].test.reset()
+        status[tr.parameter] = "ok"  # the circuit's others take this window as usual
+        if drift:
+            # Re-start at the windows, quietly, and without the rate that carried it off.
+            track.model.forget_rate(track.state)
+            self.counts["drift_corrected"] += 1
+            step.notes.append(
+                f"{tr.parameter}: the tracked value had moved {100 * math.expm1(-d):+.1f} % "
+                f"away from what the windows measure, which did not change; re-started "
+                f"at them (no change of the motor)"
+            )
+            return
         self.counts["changes"] += 1
         # The first window showing the new level wholly started after the change.
         wholly_after = first_ns - int(round(self.window_s * 1e9))
@@ -924,9 +929,6 @@ class MotorTracker:
                 t_detected_ns=t_ns,
             )
         )
-        for name in names:
-            self.tracks[name].test.reset()
-        status[tr.parameter] = "ok"  # the circuit's others take this window as usual
 
     def _min_change(self, name: str) -> float:
         c = self.config

@@ -229,7 +229,7 @@ def _glr_run(step: float, *, windows: int, seed: int) -> tuple[StepGlr, list, li
             state = model.initial(z, 0.005**2, 0.0)
             continue
         glr.predict(model.predict(state, 0.1, 0.0))
-        glr.open(t_ns - 50_000_000, model.step_direction(state), t_ns)
+        glr.open(t_ns - 50_000_000, model.step_direction(state))
         row, predicted = model.observe(state, 0.0, [])
         s = float(row @ state.P @ row) + 0.005**2
         gain = state.P @ row / s
