@@ -23,7 +23,8 @@ Three measurements, each a subcommand:
 ``steps`` and ``false-alarms`` simulate the drive of ``--preset``: ``ideal``
 (voltages held over each sample, no front end) or ``realistic`` (the thyristor
 bridges, anti-aliasing filters and ADC of ``dcobserver simulate``'s default),
-observed with the default configuration (front ends not configured).
+observed with the default configuration (front ends not configured), sampled at
+``--rate`` (default 2000 Hz, ``simulate``'s; the daemon's hardware runs at 10 000).
 
 Usage::
 
@@ -31,6 +32,7 @@ Usage::
     python -m bench.tracker_bench accuracy THERMAL.mcap --tol Ra=0.004,Rf=0.001 --after 8
     python -m bench.tracker_bench steps --seeds 20 --workers 2
     python -m bench.tracker_bench false-alarms --hours 1 --workers 2
+    python -m bench.tracker_bench false-alarms --hours 1 --workers 2 --rate 10000
     python -m bench.tracker_bench steps --seeds 20 --preset realistic
 """
 
@@ -66,6 +68,8 @@ WHERE = {"Rf": ("field", "R"), "Lf": ("field", "L"), "Ra": ("armature", "R"),
          "La": ("armature", "L"), "K": ("armature", "K")}  # fmt: skip
 #: The steps of ``steps``: target, relative size.
 STEPS = (("Ra", 0.03), ("K", -0.05), ("tach", -0.10))
+#: ``simulate``'s own rate, that of the figures measured before ``--rate`` existed.
+DEFAULT_RATE_HZ = 2000.0
 
 
 class RecordingSource(Source):
@@ -219,9 +223,9 @@ def _told(preset: str, told: bool) -> Config:
     return replace(Config(), chain=drive.chain.to_config())
 
 
-def _step_run(args: tuple[str, float, int, float, float, str, bool]) -> dict[str, Any]:
-    target, relative, seed, at_s, duration_s, preset, told = args
-    rec = simulate(P12, duration_s=duration_s, seed=1000 + seed,
+def _step_run(args: tuple[str, float, int, float, float, str, bool, float]) -> dict[str, Any]:
+    target, relative, seed, at_s, duration_s, preset, told, rate = args
+    rec = simulate(P12, duration_s=duration_s, seed=1000 + seed, sample_rate_hz=rate,
                    changes=(Change(target, relative, at_s),), **_drive(preset))  # fmt: skip
     estimates = observe(rec, _told(preset, told))
     events = [ev for e in estimates for ev in e.get("events", [])]
@@ -254,6 +258,7 @@ def _step_run(args: tuple[str, float, int, float, float, str, bool]) -> dict[str
         "seed": seed,
         "preset": preset,
         "configured": told,
+        "rate_hz": rate,
         "at_s": at_s,
         "detected": first is not None,
         "delay_s": None if first is None else first["t_ns"] / 1e9 - at_s,
@@ -270,14 +275,19 @@ def _step_run(args: tuple[str, float, int, float, float, str, bool]) -> dict[str
 
 
 def steps(
-    seeds: int, workers: int, duration_s: float = 30.0, preset: str = "ideal", told: bool = False
+    seeds: int,
+    workers: int,
+    duration_s: float = 30.0,
+    preset: str = "ideal",
+    told: bool = False,
+    rate_hz: float = DEFAULT_RATE_HZ,
 ) -> list[dict[str, Any]]:
     """Run every step of :data:`STEPS` over ``seeds`` seeds (step at a random time 12-20 s);
     ``told``: the observer is configured with the drive's measurement chain."""
     _drive(preset)  # an unknown preset fails before the runs
     rng = np.random.default_rng(11)
     jobs = [
-        (target, relative, seed, float(rng.uniform(12.0, 20.0)), duration_s, preset, told)
+        (target, relative, seed, float(rng.uniform(12.0, 20.0)), duration_s, preset, told, rate_hz)
         for target, relative in STEPS
         for seed in range(seeds)
     ]
@@ -322,24 +332,30 @@ def _identified_cell(hit: Sequence[dict[str, Any]]) -> str:
 # ---------------------------------------------------------------- false alarms
 
 
-def _clean_run(args: tuple[int, float, str, bool]) -> dict[str, Any]:
-    seed, duration_s, preset, told = args
-    rec = simulate(P12, duration_s=duration_s, seed=5000 + seed, **_drive(preset))
+def _clean_run(args: tuple[int, float, str, bool, float]) -> dict[str, Any]:
+    seed, duration_s, preset, told, rate = args
+    rec = simulate(P12, duration_s=duration_s, seed=5000 + seed, sample_rate_hz=rate,
+                   **_drive(preset))  # fmt: skip
     started = time.perf_counter()
     estimates = observe(rec, _told(preset, told))
     elapsed = time.perf_counter() - started
     events = [ev["message"] for e in estimates for ev in e.get("events", [])]
     return {"seed": seed, "duration_s": duration_s, "windows": len(estimates),
             "events": events, "replay_s": elapsed, "preset": preset,
-            "configured": told}  # fmt: skip
+            "configured": told, "rate_hz": rate}  # fmt: skip
 
 
 def false_alarms(
-    hours: float, piece_s: float, workers: int, preset: str = "ideal", told: bool = False
+    hours: float,
+    piece_s: float,
+    workers: int,
+    preset: str = "ideal",
+    told: bool = False,
+    rate_hz: float = DEFAULT_RATE_HZ,
 ) -> list[dict[str, Any]]:
     _drive(preset)
     pieces = max(1, math.ceil(hours * 3600.0 / piece_s))
-    jobs = [(seed, piece_s, preset, told) for seed in range(pieces)]
+    jobs = [(seed, piece_s, preset, told, rate_hz) for seed in range(pieces)]
     return _map(_clean_run, jobs, workers)
 
 
@@ -350,7 +366,8 @@ def false_alarm_line(runs: Sequence[dict[str, Any]]) -> str:
     replay = sum(r["replay_s"] for r in runs)
     return (
         f"{len(events)} events (false alarms) in {total_s / 3600:.2f} h of clean P-12 "
-        f"recordings ({runs[0].get('preset', 'ideal')} drive"
+        f"recordings ({runs[0].get('preset', 'ideal')} drive, "
+        f"{runs[0].get('rate_hz', DEFAULT_RATE_HZ):g} Hz"
         f"{', chain configured' if runs[0].get('configured') else ''}), "
         f"{len(events) / (total_s / 3600):.1f} per hour"
         f" ({len(runs)} pieces of {runs[0]['duration_s']:g} s, {windows} windows; "
@@ -394,6 +411,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                      help="configure this thermal time constant (s) for both windings")  # fmt: skip
     st = sub.add_parser("steps", help="detection of steps over seeds")
     st.add_argument("--seeds", type=int, default=20)
+    st.add_argument("--rate", type=float, default=DEFAULT_RATE_HZ,
+                    help="sample rate (Hz); the daemon's hardware runs at 10000")  # fmt: skip
     st.add_argument("--workers", type=int, default=2)
     st.add_argument("--duration", type=float, default=30.0)
     st.add_argument("--preset", default="ideal", choices=sorted(PRESETS),
@@ -402,6 +421,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="configure [chain] with the drive's measurement chain")  # fmt: skip
     fa = sub.add_parser("false-alarms", help="events on clean recordings")
     fa.add_argument("--hours", type=float, default=1.0)
+    fa.add_argument("--rate", type=float, default=DEFAULT_RATE_HZ,
+                    help="sample rate (Hz); the daemon's hardware runs at 10000")  # fmt: skip
     fa.add_argument("--piece-s", type=float, default=600.0)
     fa.add_argument("--workers", type=int, default=2)
     fa.add_argument("--preset", default="ideal", choices=sorted(PRESETS),
@@ -434,11 +455,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                   f"{res.events or 'none'}", file=sys.stderr)  # fmt: skip
         print(accuracy_table(results))
     elif args.command == "steps":
-        runs = steps(args.seeds, args.workers, args.duration, args.preset, args.configured)
+        runs = steps(
+            args.seeds, args.workers, args.duration, args.preset, args.configured, args.rate
+        )
         print(json.dumps(runs), file=sys.stderr)
         print(steps_table(runs))
     else:
-        runs = false_alarms(args.hours, args.piece_s, args.workers, args.preset, args.configured)
+        runs = false_alarms(
+            args.hours, args.piece_s, args.workers, args.preset, args.configured, args.rate
+        )
         print(json.dumps(runs), file=sys.stderr)
         print(false_alarm_line(runs))
     return 0

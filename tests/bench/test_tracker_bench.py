@@ -43,8 +43,9 @@ def test_steps_and_false_alarm_summaries():
 
 
 def test_false_alarms_run_on_the_realistic_drive():
-    runs = tracker_bench.false_alarms(3.0 / 3600.0, 3.0, 1, preset="realistic")
+    runs = tracker_bench.false_alarms(3.0 / 3600.0, 3.0, 1, preset="realistic", rate_hz=5000.0)
     assert [r["preset"] for r in runs] == ["realistic"] and runs[0]["windows"] > 0
-    assert "(realistic drive)" in tracker_bench.false_alarm_line(runs)
+    assert [r["rate_hz"] for r in runs] == [5000.0]
+    assert "(realistic drive, 5000 Hz)" in tracker_bench.false_alarm_line(runs)
     with pytest.raises(SystemExit, match="--preset: unknown 'thyristor'"):
         tracker_bench.steps(1, 1, preset="thyristor")
