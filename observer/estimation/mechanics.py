@@ -73,7 +73,7 @@ class SpeedFit:
 @njit(cache=True, nogil=True)
 def _hat_normal_equations(
     pos: np.ndarray, torque: np.ndarray, omega: np.ndarray, m: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, float]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float]:
     """Normal equations of ``omega ~ sum_j c_j hat_j(pos) + d * torque`` over hats on the
     integer knots ``0 .. m-1`` (``pos`` in knot units): the hats' tridiagonal block
     (diagonal, super-diagonal), their products with ``torque`` and ``omega``, and the
@@ -84,7 +84,6 @@ def _hat_normal_equations(
     bo = np.zeros(m)
     tt = 0.0
     to = 0.0
-    oo = 0.0
     for k in range(pos.shape[0]):
         j = min(int(pos[k]), m - 2)
         w = pos[k] - j
@@ -98,8 +97,7 @@ def _hat_normal_equations(
         bo[j + 1] += w * omega[k]
         tt += torque[k] * torque[k]
         to += torque[k] * omega[k]
-        oo += omega[k] * omega[k]
-    return diag, upper, bt, bo, tt, to, oo
+    return diag, upper, bt, bo, tt, to
 
 
 @njit(cache=True, nogil=True)
@@ -154,7 +152,7 @@ def smooth_speed(omega: np.ndarray, i_f: np.ndarray, ia: np.ndarray, dt: float) 
         if 2 * m >= n // b:
             break  # knots as dense as the blocks: nothing left to judge the fit by
         pos = t * ((m - 1) / duration)
-        diag, upper, bt, bo, tt, to, _ = _hat_normal_equations(pos, torque, omega, m)
+        diag, upper, bt, bo, tt, to = _hat_normal_equations(pos, torque, omega, m)
         # The torque column borders the hats' tridiagonal block: a Schur complement.
         u = _tridiagonal_solve(diag, upper, bo)
         v = _tridiagonal_solve(diag, upper, bt)

@@ -312,6 +312,19 @@ def _input_noise(problem: WindingProblem, point: WindingPoint) -> float:
     return input_noise_variance(point.residual, a_, c0)
 
 
+#: Draws of white voltage noise that :func:`input_noise_std` propagates through the fit.
+INPUT_NOISE_DRAWS = 8
+
+
+@functools.lru_cache(maxsize=8)
+def _noise_draws(n: int, count: int, seed: int) -> np.ndarray:
+    """``count`` fixed draws of unit white noise over ``n`` samples from ``seed``, made once
+    per window length (drawing them cost half of :func:`input_noise_std`); read-only."""
+    out = np.random.default_rng(seed).standard_normal((count, n))
+    out.flags.writeable = False
+    return out
+
+
 def averaged_noise(problem: WindingProblem, theta: np.ndarray) -> float:
     """Expected share of eq. (1) (A^2 per V^2) that unit white noise on the voltage adds.
 
@@ -320,25 +333,9 @@ def averaged_noise(problem: WindingProblem, theta: np.ndarray) -> float:
     own intersample model (held, averaged or band-limited); averaged over
     :data:`NOISE_DRAWS` fixed draws.
     """
-    rng = np.random.default_rng(0)
-    n = problem.voltage.shape[0]
-    draws = [np.asarray(rng.standard_normal(n), dtype=np.float64) for _ in range(NOISE_DRAWS)]
-    changes = [problem.input_moments(theta, dv) for dv in draws]
-    columns = problem.moment_columns(theta, changes)
+    draws = _noise_draws(problem.voltage.shape[0], NOISE_DRAWS, 0)
+    columns = problem.moment_columns(theta, [problem.input_moments(theta, d) for d in draws])
     return float(np.sum(columns * columns)) / NOISE_DRAWS
-
-
-#: Draws of white voltage noise that :func:`input_noise_std` propagates through the fit.
-INPUT_NOISE_DRAWS = 8
-
-
-@functools.lru_cache(maxsize=8)
-def _noise_draws(n: int) -> np.ndarray:
-    """:data:`INPUT_NOISE_DRAWS` fixed draws of unit white noise over ``n`` samples (made once
-    per window length: drawing them cost half of :func:`input_noise_std`)."""
-    out = np.random.default_rng(1).standard_normal((INPUT_NOISE_DRAWS, n))
-    out.flags.writeable = False
-    return out
 
 
 def input_noise_std(
@@ -359,7 +356,7 @@ def input_noise_std(
         inv = np.linalg.inv(jac.T @ jac)
     except np.linalg.LinAlgError:
         return np.zeros(jac.shape[1])
-    draws = _noise_draws(problem.voltage.shape[0])
+    draws = _noise_draws(problem.voltage.shape[0], INPUT_NOISE_DRAWS, 1)
     columns = problem.moment_columns(theta, [problem.input_moments(theta, d) for d in draws])
     moves = inv @ (jac.T @ columns)  # (parameters, draws)
     return math.sqrt(noise_var) * np.sqrt(np.mean(moves * moves, axis=1))
