@@ -82,7 +82,11 @@ def _drive(name: str):  # type: ignore[no-untyped-def]
 
 
 def run_case(
-    case: Case, duration_s: float = 30.0, configured: bool = False, va_offset: float = 0.0
+    case: Case,
+    duration_s: float = 30.0,
+    configured: bool = False,
+    va_offset: float = 0.0,
+    identify: bool = True,
 ) -> dict[str, np.ndarray]:
     """Errors, stds and the quality flag of every window of one recording; ``configured``:
     the estimator is told the chain's front ends (``[chain]``), as a user who knows them;
@@ -95,6 +99,7 @@ def run_case(
 
     motor = MOTORS[case.motor]
     from observer.estimation.estimate import with_learned_mismatch
+    from observer.estimation.filter_id import identify_voltage_filter
     from observer.estimation.frontend import winding_front_ends
 
     drive = _drive(case.drive)
@@ -108,21 +113,41 @@ def run_case(
     )  # fmt: skip
     sig = {c: np.asarray(rec[c], dtype=float) for c in ("va", "ia", "vf", "if", "omega")}
     dt = 1.0 / case.rate
+    # Untold: the voltages' filters identified from the converter's jumps, as `dcobserver
+    # estimate` does from the whole recording (the daemon from a window once the chain is
+    # decided); ``--no-filter-id``: the weakest filter in use assumed, as before.
+    alias = {
+        w: identify_voltage_filter(sig[v], dt).alias if fe[w] is None and identify else None
+        for w, v in (("field", "vf"), ("armature", "va"))
+    }
     kw = dict(n_particles=40, max_iterations=40, rng=0)
-    whole_f = estimate_field(sig["vf"], sig["if"], dt, front_ends=fe["field"], **kw)
-    whole_a = estimate_armature(
-        sig["va"], sig["ia"], sig["if"], sig["omega"], dt, front_ends=fe["armature"], **kw
+    whole_f = estimate_field(
+        sig["vf"], sig["if"], dt, front_ends=fe["field"], voltage_alias=alias["field"], **kw
     )
+    whole_a = estimate_armature(
+        sig["va"], sig["ia"], sig["if"], sig["omega"], dt, front_ends=fe["armature"],
+        voltage_alias=alias["armature"], **kw,
+    )  # fmt: skip
     # Untold channels that differ like the commonest pair: learned and corrected for, as
     # `dcobserver estimate` does (the daemon learns it over its first windows).
     learned = {"field": whole_f.mismatch_size, "armature": whole_a.mismatch_size}
     whole_f = with_learned_mismatch(
-        whole_f, functools.partial(estimate_field, sig["vf"], sig["if"], dt, **kw)
+        whole_f,
+        functools.partial(
+            estimate_field, sig["vf"], sig["if"], dt, voltage_alias=alias["field"], **kw
+        ),
     )
     whole_a = with_learned_mismatch(
         whole_a,
         functools.partial(
-            estimate_armature, sig["va"], sig["ia"], sig["if"], sig["omega"], dt, **kw
+            estimate_armature,
+            sig["va"],
+            sig["ia"],
+            sig["if"],
+            sig["omega"],
+            dt,
+            voltage_alias=alias["armature"],
+            **kw,
         ),
     )
     truth = np.array([getattr(motor, PARAMETERS[name][2]) for name in NAMES])
@@ -137,12 +162,13 @@ def run_case(
         f = estimate_field(
             sig["vf"][s], sig["if"][s], dt, intersample=whole_f.intersample,
             shift=whole_f.shift_samples, front_ends=fe["field"], mismatch=learned["field"],
-            **kw_w,
+            voltage_alias=alias["field"], **kw_w,
         )  # fmt: skip
         a = estimate_armature(
             sig["va"][s], sig["ia"][s], sig["if"][s], sig["omega"][s], dt,
             intersample=whole_a.intersample, shift=whole_a.shift_samples,
-            front_ends=fe["armature"], mismatch=learned["armature"], **kw_w,
+            front_ends=fe["armature"], mismatch=learned["armature"],
+            voltage_alias=alias["armature"], **kw_w,
         )  # fmt: skip
         est = np.array([f.resistance_ohm, f.inductance_h, a.resistance_ohm, a.inductance_h,
                         a.emf_constant_h])  # fmt: skip
@@ -197,6 +223,11 @@ def main(argv: list[str] | None = None) -> int:
         "--va-offset", type=float, default=0.0,
         help="armature voltage sensor offset (V) in the recordings, not told to the estimator",
     )  # fmt: skip
+    parser.add_argument(
+        "--no-filter-id", action="store_true",
+        help="untold: assume the weakest voltage filter in use instead of identifying it from "
+        "the converter's jumps (the estimator before filter identification)",
+    )  # fmt: skip
     parser.add_argument("--out", help="also write the table to this Markdown file")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
@@ -219,7 +250,11 @@ def main(argv: list[str] | None = None) -> int:
             bar.set_description(f"{motor} {rate} Hz {drive} seed {seed}")
             results.append(
                 run_case(
-                    Case(motor, rate, drive, seed), args.duration, args.configured, args.va_offset
+                    Case(motor, rate, drive, seed),
+                    args.duration,
+                    args.configured,
+                    args.va_offset,
+                    identify=not args.no_filter_id,
                 )
             )
             bar.update()

@@ -55,6 +55,7 @@ def armature_problem(
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
     mismatch: float | None = None,
     fit_speed: bool = True,
+    voltage_alias: float | None = None,
 ) -> WindingProblem:
     """The armature's :class:`~observer.estimation.problem.WindingProblem` over a window
     (``fit_speed``: the EMF's speed from the shaft's equation, else the samples as measured)."""
@@ -72,6 +73,7 @@ def armature_problem(
         emf_constant=emf_constant, fit_shift=fit_shift, shift=shift,
         fit_lag=fit_lag and model == "smooth", lag=lag if model == "smooth" else 0.0,
         also_checked=(i_f, omega), front_ends=front_ends, mismatch=mismatch,
+        voltage_alias=voltage_alias,
     )  # fmt: skip
 
 
@@ -104,6 +106,7 @@ def estimate_armature(
     settled_rms: float | None = None,
     mismatch: float | None = None,
     fit_speed: bool = True,
+    voltage_alias: float | None = None,
 ) -> CircuitEstimate:
     """Estimate ``(Ra, La, K)`` of the armature from ``va, ia`` and measured ``if, omega``.
 
@@ -130,13 +133,16 @@ def estimate_armature(
         Take the EMF's speed from the shaft's equation fitted to ``omega``
         (:func:`observer.estimation.mechanics.smooth_speed`; the default), or the samples
         as they are (a speed that is already an observer's clean estimate).
+    voltage_alias : float, optional
+        The untold voltage filter's aliasing factor identified from the converter's jumps
+        (see :func:`observer.estimation.estimate_field`).
     Other parameters
         As for :func:`estimate_field`.
     """
     problem = armature_problem(
         va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=intersample,
         fit_shift=fit_shift, shift=shift, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
-        mismatch=mismatch, fit_speed=fit_speed,
+        mismatch=mismatch, fit_speed=fit_speed, voltage_alias=voltage_alias,
     )  # fmt: skip
     n = problem.current.shape[0]
     rng_ = np.random.default_rng(rng)
@@ -168,7 +174,7 @@ def estimate_armature(
         lambda s: armature_problem(
             va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=problem.inp.model,
             fit_shift=fit_shift, shift=s, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
-            mismatch=mismatch, fit_speed=fit_speed,
+            mismatch=mismatch, fit_speed=fit_speed, voltage_alias=voltage_alias,
         ),
         polish=polish,
     )  # fmt: skip

@@ -9,6 +9,7 @@ settings (and optional search ranges) of an
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from typing import Any
 
@@ -16,9 +17,12 @@ import numpy as np
 
 from observer.estimation.armature import estimate_armature
 from observer.estimation.field import estimate_field
+from observer.estimation.filter_id import identify_voltage_filter
 from observer.estimation.frontend import applied_mismatch, winding_front_ends
 from observer.estimation.ranges import EstimationError, SearchRange
 from observer.estimation.result import CircuitEstimate
+
+log = logging.getLogger(__name__)
 
 CIRCUITS = ("field", "armature")
 
@@ -79,6 +83,8 @@ def estimate_recording(
             "intersample": chain.intersample if chain is not None else "auto",
             "front_ends": winding_front_ends(chain, circuit),
         }
+        if chain_kw["front_ends"] is None and chain_kw["intersample"] in ("auto", "smooth"):
+            chain_kw["voltage_alias"] = voltage_alias(rec, circuit, prefix)
         try:
             first = _estimate(circuit, rec, rng, cfg, common, chain_kw)
             out[circuit] = with_learned_mismatch(
@@ -91,6 +97,23 @@ def estimate_recording(
         except EstimationError as exc:
             raise EstimationError(f"{prefix}{circuit} circuit: {exc}") from None
     return out
+
+
+def voltage_alias(rec: Any, circuit: str, prefix: str = "") -> float | None:
+    """The untold voltage filter's aliasing factor, identified from the converter's jumps
+    in the recording's voltage of ``circuit`` (None: not identified; the weakest filter in
+    use is then assumed)."""
+    channel = CIRCUIT_CHANNELS[circuit][0]
+    fit = identify_voltage_filter(np.asarray(rec[channel], dtype=float), rec.dt)
+    if fit.alias is None:
+        log.debug("%s%s voltage filter not identified: %s", prefix, circuit, fit.reason)
+    else:
+        log.debug(
+            "%s%s voltage filter identified from %d jumps: %s (residual %.3g V), aliasing "
+            "factor %.4f", prefix, circuit, fit.jumps, fit.text, fit.rms_v,
+            fit.alias,
+        )  # fmt: skip
+    return fit.alias
 
 
 def with_learned_mismatch(

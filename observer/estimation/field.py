@@ -53,6 +53,7 @@ def estimate_field(
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
     settled_rms: float | None = None,
     mismatch: float | None = None,
+    voltage_alias: float | None = None,
 ) -> CircuitEstimate:
     """Estimate ``(Rf, Lf)`` of the field winding from ``vf`` (V) and ``if`` (A).
 
@@ -90,6 +91,10 @@ def estimate_field(
         Front ends not told: the size of the commonest mismatch of the channels learned
         (a whole recording's or the first windows' ``mismatch_size``); a filtered voltage
         is corrected by it (:func:`~observer.estimation.frontend.applied_mismatch`).
+    voltage_alias : float, optional
+        Front ends not told: the voltage filter's aliasing factor identified from the
+        converter's jumps (:func:`~observer.estimation.filter_id.identify_voltage_filter`);
+        None: the weakest filter in use is assumed.
     """
     vf = kernel_array(vf)
     i_f = kernel_array(i_f)
@@ -99,7 +104,7 @@ def estimate_field(
     model, switching = choose_model(vf, intersample, dt)
     problem = make_problem(
         vf, i_f, dt, model, switching=switching, fit_shift=fit_shift, shift=shift,
-        front_ends=front_ends, mismatch=mismatch,
+        front_ends=front_ends, mismatch=mismatch, voltage_alias=voltage_alias,
     )  # fmt: skip
     settings = SwarmSettings(
         n_particles, max_iterations, schedule, w, x0, init_range, explore_fraction, tol
@@ -114,7 +119,7 @@ def estimate_field(
         problem, result, fit, bounds,
         lambda s: make_problem(
             vf, i_f, dt, model, switching=switching, fit_shift=fit_shift, shift=s,
-            front_ends=front_ends, mismatch=mismatch,
+            front_ends=front_ends, mismatch=mismatch, voltage_alias=voltage_alias,
         ),
         polish=polish,
     )  # fmt: skip

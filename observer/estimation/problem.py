@@ -466,6 +466,7 @@ def make_problem(
     also_checked: tuple[np.ndarray, ...] = (),
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
     mismatch: float | None = None,
+    voltage_alias: float | None = None,
 ) -> WindingProblem:
     """A :class:`WindingProblem` for voltage samples under intersample ``model``.
 
@@ -530,6 +531,9 @@ def make_problem(
             None if known_v is None else functools.partial(known_v.response, sample_rate_hz=1 / dt),
             1.0 / dt,
         )
+        if known_v is None and voltage_alias is not None:
+            # Untold, but identified from the converter's jumps (:mod:`.filter_id`).
+            factor = voltage_alias
         t = sw.transition_mask
         bounds = [
             alias_bias(raw_voltage[p.start : p.stop + 1], t[p], factor)

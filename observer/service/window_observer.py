@@ -68,6 +68,7 @@ from observer.estimation import (
     estimate_field,
     field_search_range,
 )
+from observer.estimation.filter_id import FilterFit, identify_voltage_filter
 from observer.estimation.frontend import applied_mismatch, winding_front_ends
 from observer.estimation.motor import MotorParameters
 from observer.estimation.result import kphi
@@ -83,6 +84,9 @@ from observer.service.tracker import (
 )
 
 log = logging.getLogger(__name__)
+
+#: Tries at identifying an untold voltage filter from windows with too few jumps.
+FILTER_TRIES = 20
 
 _NS = 1_000_000_000
 CIRCUIT_PARAMS = {"field": ("R", "L"), "armature": ("R", "L", "K")}
@@ -113,6 +117,10 @@ class _ChainState:
     shift: float = 0.0  # decided relative delay of the voltage (sample periods)
     # Untold front ends: the decided size of the channels' commonest mismatch (None: none).
     mismatch: float | None = None
+    # Untold front ends: the voltage filter identified from the converter's jumps, and the
+    # windows since the chain was decided (tries are spaced by them).
+    voltage_filter: FilterFit | None = None
+    filter_windows: int = 0
     votes: Counter[str] = field(default_factory=Counter)
     shifts: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     mismatches: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
@@ -147,6 +155,9 @@ class _ChainState:
             "model": self.model,
             "shift_samples": self.shift if self.model is not None else None,
             "mismatch": self.mismatch if self.model is not None else None,
+            "voltage_filter": (
+                self.voltage_filter.to_dict() if self.voltage_filter is not None else None
+            ),
             "votes": dict(self.votes),
         }
 
@@ -467,7 +478,7 @@ class SlidingWindowObserver:
             est = estimate_field(s["vf"], s["if"], dt, **kwargs)
         else:
             est = estimate_armature(s["va"], s["ia"], s["if"], s["omega"], dt, **kwargs)
-        self._learn_chain(circuit, est)
+        self._learn_chain(circuit, est, s["vf" if circuit == "field" else "va"], dt)
         search.warm = warm
         if math.isfinite(est.inductance_h) and est.inductance_h > 0:
             search.last_l = est.inductance_h
@@ -490,25 +501,62 @@ class SlidingWindowObserver:
             out["fit_shift"] = False
             out["shift"] = state.shift
             out["mismatch"] = state.mismatch
+            if state.voltage_filter is not None and out["front_ends"] is None:
+                out["voltage_alias"] = state.voltage_filter.alias
         return out
 
-    def _learn_chain(self, circuit: str, est: CircuitEstimate) -> None:
+    def _learn_chain(
+        self, circuit: str, est: CircuitEstimate, voltage: np.ndarray, dt: float
+    ) -> None:
         state = self._chain_state[circuit]
-        if state.model is not None or self.chain.intersample != "auto":
+        if self.chain.intersample != "auto" or self.config.decimate > 1:
             return
-        if self.config.decimate > 1:
+        if state.model is not None:
+            self._identify_voltage_filter(circuit, state, voltage, dt)
             return
         if not est.describes_window:
             return
         state.record(est)
         if sum(state.votes.values()) >= self.config.chain_windows:
             state.decide()
+            self._identify_voltage_filter(circuit, state, voltage, dt)
             corrected = applied_mismatch(state.mismatch)
             log.info(
                 "%s measurement chain decided over %d windows: %s voltage, delay %.2f samples%s",
                 circuit, sum(state.votes.values()), state.model, state.shift,
                 f", untold channels corrected for {corrected:.2f} x the commonest mismatch "
                 "(an RC beside a 2nd-order filter)" if corrected else "",
+            )  # fmt: skip
+
+    def _identify_voltage_filter(
+        self, circuit: str, state: _ChainState, voltage: np.ndarray, dt: float
+    ) -> None:
+        """Untold front ends and a filtered voltage: which filter, from the converter's
+        jumps in this window (:mod:`observer.estimation.filter_id`). A window with too few
+        jumps (a drive at standstill) is followed by another try every ``chain_windows``
+        windows, at most :data:`FILTER_TRIES` times; a voltage the jumps' model does not
+        describe is not tried again."""
+        if state.model != "smooth" or winding_front_ends(self.chain, circuit) is not None:
+            return
+        fit = state.voltage_filter
+        if fit is not None and (fit.alias is not None or not fit.too_few_jumps):
+            return
+        state.filter_windows += 1
+        if (state.filter_windows - 1) % self.config.chain_windows:
+            return
+        tries = (state.filter_windows - 1) // self.config.chain_windows + 1
+        if tries > FILTER_TRIES:
+            return
+        fit = state.voltage_filter = identify_voltage_filter(voltage, dt)
+        if fit.alias is not None:
+            log.info(
+                "%s voltage filter identified from %d jumps: %s (residual %.3g V), aliasing "
+                "factor %.4f", circuit, fit.jumps, fit.text, fit.rms_v, fit.alias,
+            )  # fmt: skip
+        elif not fit.too_few_jumps or tries == FILTER_TRIES:
+            log.info(
+                "%s voltage filter not identified (%s): the weakest filter in use is assumed "
+                "(configure [chain])", circuit, fit.reason,
             )  # fmt: skip
 
     def _update_search(
@@ -799,10 +847,11 @@ def warm_up_kernels() -> float:
     :func:`observer.estimation.ranges.kernel_array`). The window is made by the
     estimator's own winding models, so the service needs no simulator.
     """
-    from observer.estimation import kernels
+    from observer.estimation import filter_id, kernels
     from observer.estimation.motor import P12
 
     started = time.monotonic()
+    filter_id.warm_up()
     dt = 1e-3
     va, ia, vf, i_f, omega = _synthetic_windings(P12, n=200, dt=dt)
     # The compensated swarm's call, whatever the fits below reach.
