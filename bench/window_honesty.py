@@ -99,7 +99,7 @@ def run_case(
 
     motor = MOTORS[case.motor]
     from observer.estimation.estimate import with_learned_mismatch
-    from observer.estimation.filter_id import identify_voltage_filter
+    from observer.estimation.filter_id import IDENTIFIED_WINDINGS, identify_voltage_filter
     from observer.estimation.frontend import winding_front_ends
 
     drive = _drive(case.drive)
@@ -117,7 +117,9 @@ def run_case(
     # estimate` does from the whole recording (the daemon from a window once the chain is
     # decided); ``--no-filter-id``: the weakest filter in use assumed, as before.
     alias = {
-        w: identify_voltage_filter(sig[v], dt).alias if fe[w] is None and identify else None
+        w: identify_voltage_filter(sig[v], dt).alias
+        if fe[w] is None and identify and w in IDENTIFIED_WINDINGS
+        else None
         for w, v in (("field", "vf"), ("armature", "va"))
     }
     kw = dict(n_particles=40, max_iterations=40, rng=0)

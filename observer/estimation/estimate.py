@@ -17,7 +17,7 @@ import numpy as np
 
 from observer.estimation.armature import estimate_armature
 from observer.estimation.field import estimate_field
-from observer.estimation.filter_id import identify_voltage_filter
+from observer.estimation.filter_id import IDENTIFIED_WINDINGS, identify_voltage_filter
 from observer.estimation.frontend import applied_mismatch, winding_front_ends
 from observer.estimation.ranges import EstimationError, SearchRange
 from observer.estimation.result import CircuitEstimate
@@ -83,7 +83,11 @@ def estimate_recording(
             "intersample": chain.intersample if chain is not None else "auto",
             "front_ends": winding_front_ends(chain, circuit),
         }
-        if chain_kw["front_ends"] is None and chain_kw["intersample"] in ("auto", "smooth"):
+        if (
+            circuit in IDENTIFIED_WINDINGS
+            and chain_kw["front_ends"] is None
+            and chain_kw["intersample"] in ("auto", "smooth")
+        ):
             chain_kw["voltage_alias"] = voltage_alias(rec, circuit, prefix)
         try:
             first = _estimate(circuit, rec, rng, cfg, common, chain_kw)

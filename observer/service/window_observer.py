@@ -68,7 +68,11 @@ from observer.estimation import (
     estimate_field,
     field_search_range,
 )
-from observer.estimation.filter_id import FilterFit, identify_voltage_filter
+from observer.estimation.filter_id import (
+    IDENTIFIED_WINDINGS,
+    FilterFit,
+    identify_voltage_filter,
+)
 from observer.estimation.frontend import applied_mismatch, winding_front_ends
 from observer.estimation.motor import MotorParameters
 from observer.estimation.result import kphi
@@ -537,6 +541,8 @@ class SlidingWindowObserver:
         windows, at most :data:`FILTER_TRIES` times; a voltage the jumps' model does not
         describe is not tried again."""
         if state.model != "smooth" or winding_front_ends(self.chain, circuit) is not None:
+            return
+        if circuit not in IDENTIFIED_WINDINGS:
             return
         fit = state.voltage_filter
         if fit is not None and (fit.alias is not None or not fit.too_few_jumps):
