@@ -80,6 +80,9 @@ OUTLIER = 4.0
 REFINE_STEPS = 8
 REFINED = 3.0
 
+#: The golden section's ratio (both searches: a jump's instant, a family's cutoff).
+GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
+
 #: Each jump's instant is searched over this many points of the two intervals around it,
 #: then refined by this many golden-section steps (to 2e-4 of an interval).
 GRID = 11
@@ -122,10 +125,10 @@ class FilterFit:
     @property
     def text(self) -> str:
         """The best candidate in the grammar of ``[chain]`` (``butter2@fs/4.00``)."""
-        if "@" not in self.best:
+        if self.best in ("", "none"):
             return self.best
-        family, frac = self.best.split("@")
-        return f"{family}@fs/{1.0 / float(frac):.2f}"
+        kind, order, frac = _parse(self.best)
+        return f"{kind}{order}@fs/{1.0 / frac:.2f}"
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -133,6 +136,14 @@ class FilterFit:
             "rms_v": self.rms_v if math.isfinite(self.rms_v) else None, "jumps": self.jumps,
             "reason": self.reason,
         }  # fmt: skip
+
+
+def _parse(name: str) -> tuple[str, int, float]:
+    """``butter2@0.2500`` -> ``("butter", 2, 0.25)``: a candidate's kind, order and cutoff
+    as a fraction of the sample rate."""
+    family, frac = name.split("@")
+    kind = family.rstrip("0123456789")
+    return kind, int(family[len(kind) :]), float(frac)
 
 
 def candidates(sample_rate_hz: float) -> dict[str, np.ndarray | None]:
@@ -266,8 +277,7 @@ def _stretch_rss(
             # interval misses by volts): golden-section search around the grid's best.
             h = offsets[1] - offsets[0]
             lo, hi = offsets[j] - h, offsets[j] + h
-            ratio = 0.5 * (math.sqrt(5.0) - 1.0)
-            x1, x2 = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+            x1, x2 = hi - GOLDEN * (hi - lo), lo + GOLDEN * (hi - lo)
             t0[k] = starts[k] + 0.5 + x1
             f1 = _rss(y, w, t0, p, r)
             t0[k] = starts[k] + 0.5 + x2
@@ -275,12 +285,12 @@ def _stretch_rss(
             for _ in range(GOLDEN_STEPS):
                 if f1 < f2:
                     hi, x2, f2 = x2, x1, f1
-                    x1 = hi - ratio * (hi - lo)
+                    x1 = hi - GOLDEN * (hi - lo)
                     t0[k] = starts[k] + 0.5 + x1
                     f1 = _rss(y, w, t0, p, r)
                 else:
                     lo, x1, f1 = x1, x2, f2
-                    x2 = lo + ratio * (hi - lo)
+                    x2 = lo + GOLDEN * (hi - lo)
                     t0[k] = starts[k] + 0.5 + x2
                     f2 = _rss(y, w, t0, p, r)
             at, value = (x1, f1) if f1 < f2 else (x2, f2)
@@ -363,8 +373,9 @@ def identify_voltage_filter(v: np.ndarray, dt: float) -> FilterFit:
             p, r = poles_residues(sections, dt)
         return np.array([_stretch_rss(v[a:b], w, js, p, r, GRID) for a, b, js in stretches])
 
-    names = list(candidates(fs))
-    table = np.array([rss_of(sections) for sections in candidates(fs).values()])
+    grid = candidates(fs)
+    names = list(grid)
+    table = np.array([rss_of(sections) for sections in grid.values()])
     # Stretches no candidate describes (deep discontinuous conduction: the current's
     # extinction bends the voltage in ways a sine and a constant do not follow) would
     # decide by how badly each misses them: left out.
@@ -382,7 +393,7 @@ def identify_voltage_filter(v: np.ndarray, dt: float) -> FilterFit:
         # transient is over within a sample, families differ in what the data cannot show
         # (an RC at 0.35 fs at 2 kHz fits as well as two RCs at 0.37 fs, whose alias is a
         # quarter less), so every family near the best is refined and the ties compared.
-        at = CUTOFF_FRACTIONS.index(float(name.split("@")[1]))
+        at = CUTOFF_FRACTIONS.index(_parse(name)[2])
         lo = math.log(CUTOFF_FRACTIONS[max(at - 1, 0)])
         hi = math.log(CUTOFF_FRACTIONS[min(at + 1, len(CUTOFF_FRACTIONS) - 1)])
 
@@ -393,17 +404,16 @@ def identify_voltage_filter(v: np.ndarray, dt: float) -> FilterFit:
                 scores[key] = float(rss[kept].sum() / lengths[kept].sum())
             return scores[key]
 
-        g = 0.5 * (math.sqrt(5.0) - 1.0)
-        x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+        x1, x2 = hi - GOLDEN * (hi - lo), lo + GOLDEN * (hi - lo)
         f1, f2 = score(x1), score(x2)
         for _ in range(REFINE_STEPS):
             if f1 < f2:
                 hi, x2, f2 = x2, x1, f1
-                x1 = hi - g * (hi - lo)
+                x1 = hi - GOLDEN * (hi - lo)
                 f1 = score(x1)
             else:
                 lo, x1, f1 = x1, x2, f2
-                x2 = lo + g * (hi - lo)
+                x2 = lo + GOLDEN * (hi - lo)
                 f2 = score(x2)
     best = min(scores, key=scores.__getitem__)
     tied = tuple(sorted((k for k, s in scores.items() if s <= TIED * scores[best]),
@@ -432,7 +442,6 @@ def candidate_alias(name: str, sample_rate_hz: float) -> float:
     """The aliasing factor of candidate ``name`` (:func:`candidates`) at ``sample_rate_hz``."""
     if name == "none":
         return BARE_JUMP_ALIAS
-    family, frac = name.split("@")
-    kind = family.rstrip("0123456789")
-    sections = filter_sections(kind, int(family[len(kind) :]), float(frac) * sample_rate_hz)
+    kind, order, frac = _parse(name)
+    sections = filter_sections(kind, order, frac * sample_rate_hz)
     return alias_factor(lambda f: sections_response(sections, f), sample_rate_hz)
