@@ -31,8 +31,10 @@ from observer.estimation.result import CircuitEstimate
 from observer.estimation.stages import (
     EivCorrection,
     SwarmSettings,
+    corrected_point,
     eiv_stage,
     guard_stage,
+    jump_stage,
     search_and_polish,
     specification_stage,
     std_stage,
@@ -183,8 +185,9 @@ def estimate_armature(
     else:
         eiv = EivCorrection(fit.point, 0.0, np.zeros(3))
     spec = specification_stage(problem, fit, bounds) if polish else None
-    std = std_stage(problem, fit, eiv, spec)
-    point = eiv.point
+    jump = jump_stage(problem, fit) if polish else None
+    std = std_stage(problem, fit, eiv, spec, jump)
+    point = corrected_point(eiv.point, jump)
     coverage = problem.segments.covered / n
     note = pwm_note(va, "armature") or coverage_note(coverage, "armature")
     return CircuitEstimate(

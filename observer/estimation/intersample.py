@@ -466,6 +466,27 @@ def alias_factor(
 UNKNOWN_FILTER_ALIAS = alias_factor(lambda f: 1.0 / (1.0 + 1j * f / 500.0), 2000.0)
 
 
+def jump_runs(v: np.ndarray, transitions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The jumps of ``v``: each run of intervals in a transition (``transitions``, as
+    :attr:`Switching.transition_mask`) is one jump and its settling; its first interval
+    and its size (V, from the sample before the run to the sample after it)."""
+    n = v.shape[0]
+    if n < 2 or not np.any(transitions):
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    # A settling jump can leave a sample or two on its smooth curve by chance: runs so close
+    # belong to one jump.
+    t = transitions.copy()
+    for g in np.flatnonzero(t[:-1] & ~t[1:]) + 1:  # the first interval of each gap
+        for width in (1, 2):
+            if g + width < t.shape[0] and t[g + width]:
+                t[g : g + width] = True
+                break
+    edges = np.diff(np.concatenate([[0], t.astype(np.int8), [0]]))
+    starts = np.flatnonzero(edges == 1)
+    ends = np.flatnonzero(edges == -1)  # one past the run's last interval = sample after it
+    return starts, v[np.minimum(ends, n - 1)] - v[starts]
+
+
 def alias_bias_bound(v: np.ndarray, transitions: np.ndarray, factor: float) -> float:
     """One-sigma size (V) of the error of the window's mean voltage that sampled jumps leave
     (:func:`alias_bias`'s size alone)."""
@@ -496,18 +517,7 @@ def alias_bias(v: np.ndarray, transitions: np.ndarray, factor: float) -> tuple[f
     n = v.shape[0]
     if n < 2 or not np.any(transitions):
         return 0.0, False
-    # A settling jump can leave a sample or two on its smooth curve by chance: runs so close
-    # belong to one jump.
-    t = transitions.copy()
-    for g in np.flatnonzero(t[:-1] & ~t[1:]) + 1:  # the first interval of each gap
-        for width in (1, 2):
-            if g + width < t.shape[0] and t[g + width]:
-                t[g : g + width] = True
-                break
-    edges = np.diff(np.concatenate([[0], t.astype(np.int8), [0]]))
-    starts = np.flatnonzero(edges == 1)
-    ends = np.flatnonzero(edges == -1)  # one past the run's last interval = sample after it
-    jumps = v[np.minimum(ends, n - 1)] - v[starts]
+    starts, jumps = jump_runs(v, transitions)
     spacing = np.diff(starts)
     # Locked: the runs recur every whole number of samples (a field bridge on 50 Hz at
     # 2 kHz: every 10), so each one falls at the same place between samples. A 6-pulse
@@ -963,6 +973,7 @@ def emf_moments(i_f: np.ndarray, omega: np.ndarray, segments: Segments) -> np.nd
 __all__ = [
     "alias_bias",
     "alias_bias_bound",
+    "jump_runs",
     "alias_factor",
     "MODELS",
     "InputModel",

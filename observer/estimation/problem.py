@@ -41,6 +41,7 @@ from observer.estimation.intersample import (
     build_input,
     find_switching,
     hold_moments,
+    jump_runs,
     pwm_level_changes,
     rail_samples,
     settle_current,
@@ -90,6 +91,12 @@ class WindingProblem:
     mismatch_applied : float
         Untold front ends: the size of the commonest mismatch the voltage was corrected by
         (:func:`~observer.estimation.frontend.applied_mismatch` of the size learned).
+    jumps : tuple of (starts, sizes) arrays, or None
+        A ``smooth`` voltage's jumps (:func:`~observer.estimation.intersample.jump_runs`):
+        the first interval of each and its size (V).
+    jump_alias : float
+        The front end's aliasing factor those jumps are seen through
+        (:func:`~observer.estimation.intersample.alias_factor`, or the identified one).
     """
 
     voltage: np.ndarray
@@ -105,6 +112,8 @@ class WindingProblem:
     untold_front_end: bool = False
     alias_locked: tuple[bool, ...] = ()
     mismatch_applied: float = 0.0
+    jumps: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    jump_alias: float = 0.0
     _mu_emf: np.ndarray | None = field(default=None, repr=False)
     _mu_cache: dict[tuple[float, float], np.ndarray] = field(default_factory=dict, repr=False)
 
@@ -174,7 +183,7 @@ class WindingProblem:
         return WindingProblem(
             self.voltage, self.current, self.dt, inp, self.emf, self.emf_constant,
             self.fit_shift, self.fit_lag, lag_, self.alias_v, self.untold_front_end,
-            self.alias_locked, self.mismatch_applied,
+            self.alias_locked, self.mismatch_applied, self.jumps, self.jump_alias,
         )  # fmt: skip
 
     # ------------------------------------------------------------- the swarm
@@ -314,6 +323,15 @@ class WindingProblem:
         return np.column_stack(
             [self._simulated(resistance, inductance, k, mu + d)[0] - base for d in changes]
         )
+
+    def jump_moments(self) -> np.ndarray:
+        """The moments' change were every jump's interval mean raised by the jump's size
+        (an error of each jump's area of one sample period times its size)."""
+        d = np.zeros_like(self.inp.mu)
+        if self.jumps is not None:
+            starts, sizes = self.jumps
+            d[starts, 0] = sizes
+        return d
 
     def offset_moments(self, where: slice = slice(None)) -> np.ndarray:
         """The moments' change of every interval's mean raised by 1 V (only in ``where``)."""
@@ -522,6 +540,8 @@ def make_problem(
         switching = settle_current(current, voltage, sw, at_least=delay)
     alias_v: tuple[float, ...] = ()
     alias_locked: tuple[bool, ...] = ()
+    jumps: tuple[np.ndarray, np.ndarray] | None = None
+    jump_alias = 0.0
     if model == "smooth":
         # Jumps between samples that a smooth reconstruction spreads over their intervals
         # (a switched model leaves them out of its segments; a held voltage has none).
@@ -541,10 +561,12 @@ def make_problem(
         ]
         alias_v = tuple(b for b, _ in bounds)
         alias_locked = tuple(locked for _, locked in bounds)
+        jumps = jump_runs(raw_voltage, t)
+        jump_alias = factor
     inp = build_input(voltage, model, shift=shift, switching=switching, valid=valid, dt=dt)  # type: ignore[arg-type]
     problem = WindingProblem(
         voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag, alias_v,
         untold_front_end=front_ends is None and model == "smooth", alias_locked=alias_locked,
-        mismatch_applied=applied,
+        mismatch_applied=applied, jumps=jumps, jump_alias=jump_alias,
     )  # fmt: skip
     return problem.with_shift(shift, lag) if lag else problem
