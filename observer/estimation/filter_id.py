@@ -37,12 +37,12 @@ from numba import njit
 from observer.estimation.frontend import filter_sections, sections_response
 from observer.estimation.intersample import BARE_JUMP_ALIAS, MAINS_HZ, alias_factor, find_switching
 
-#: Windings whose untold voltage filter is identified and used. The armature's is not: with
-#: the Butterworth's alias in place of the RC's, windows where a converter-fed drive holds its
-#: speed read Ra -2.4 % and K +0.5 % at |error/std| up to 4.3 (P-12, 10 kHz, a whole second at
-#: 56-66 rad/s twice in ten minutes), and the tracker confirmed a false "Ra fell 2.4 %": the
-#: RC's larger alias term had covered a held-speed error the armature's std does not yet carry.
-IDENTIFIED_WINDINGS = ("field",)
+#: Windings whose untold voltage filter is identified and used: both. (The armature's was
+#: withdrawn for a while: with the Butterworth's alias in place of the RC's, windows where a
+#: converter-fed drive holds its speed read Ra -2.4 % and K +0.5 % at |error/std| up to 4.3,
+#: and the tracker confirmed a false "Ra fell 2.4 %". That error is the jumps' common area
+#: error, which :func:`observer.estimation.stages.jump_stage` now measures and carries.)
+IDENTIFIED_WINDINGS = ("field", "armature")
 
 #: Filter families tried (kind, order) and cutoffs as fractions of the sample rate.
 FAMILIES = (("rc", 1), ("rc", 2), ("butter", 2), ("bessel", 2), ("butter", 3), ("butter", 4),

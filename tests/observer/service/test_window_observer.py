@@ -405,8 +405,8 @@ def test_an_untold_voltage_filter_is_identified_and_narrows_the_std(monkeypatch)
     """The realistic chain (2nd-order Butterworth at fs/4, 2 kHz) not told: once the chain is
     decided, the field voltage's filter is identified from the bridge's jumps, and the
     windows' Rf std carries its alias (a quarter of the RC's assumed before), still covering
-    the error; with identification off, the std is the RC's. The armature keeps the RC's
-    (filter_id.IDENTIFIED_WINDINGS)."""
+    the error; with identification off, the std is the RC's. The armature's is identified
+    too (filter_id.IDENTIFIED_WINDINGS)."""
     from observer.service import window_observer
     from observer.simulation.converter import PRESETS
 
@@ -424,7 +424,7 @@ def test_an_untold_voltage_filter_is_identified_and_narrows_the_std(monkeypatch)
     fit = chain["field"]["voltage_filter"]
     assert fit["best"].startswith(("butter2", "bessel2")), fit
     assert 0.0141 < fit["alias"] < 0.0142 * 1.2
-    assert chain["armature"]["voltage_filter"] is None
+    assert chain["armature"]["voltage_filter"]["best"].startswith(("butter2", "bessel2"))
     after = decided_windows(results)
     truth = P12.field_resistance_ohm
     errors = np.array([a["raw"]["R"] / truth - 1 for a in after])
