@@ -736,10 +736,12 @@ class JumpAlias:
         The error's posterior mean and standard deviation, as a share of each jump's size
         times a sample period (its prior: zero, with the front end's aliasing factor).
     delta : (3,) array
-        The correction of ``ln R, ln L, K`` it asks for (added to the estimate).
+        The correction of ``ln R, ln L, K`` applied to the estimate: zero unless
+        :data:`JUMP_CORRECTED`.
     spread, common : (3,) arrays
-        The one-sigma move of ``ln R, ln L, K`` its posterior leaves, and the part of it every
-        window shares (where the data could not measure it, the prior's).
+        The one-sigma move of ``ln R, ln L, K`` the std carries (the measured size's move and
+        the posterior spread's; corrected, the spread's alone), and the part of the spread
+        every window shares (where the data could not measure the size, the prior's).
     """
 
     size: float
@@ -920,7 +922,7 @@ def std_stage(
             # A mismatch of the channels is the chain's, the same in every window.
             shared[:k] = np.hypot(shared[:k], untold.common)
         if jump is not None:
-            # What the jumps' common area error leaves after its correction.
+            # The jumps' common area error: its measured move and its spread.
             offset[:k] = np.hypot(offset[:k], jump.spread[:k])
             shared[:k] = np.hypot(shared[:k], jump.common[:k])
         offset[:2] *= (eiv.point.resistance_ohm, eiv.point.inductance_h)
