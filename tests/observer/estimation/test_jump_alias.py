@@ -65,3 +65,29 @@ def test_a_held_voltage_has_no_jumps_to_alias():
     va, ia, i_f, w = (np.asarray(rec[c]) for c in ("va", "ia", "if", "omega"))
     problem = armature.armature_problem(va, ia, i_f, w, 1 / 2000.0, intersample="hold")
     assert problem.jumps is None
+
+
+def test_the_correction_switch_moves_the_estimate_by_the_measured_move(held_windows, monkeypatch):
+    """stages.JUMP_CORRECTED (off: the move is carried in the std): on, the estimate moves by
+    the stage's delta and the std keeps only the posterior's spread."""
+    import observer.estimation.stages as stages
+
+    captured = []
+
+    def spy(problem, fit):
+        jump = stages.jump_stage(problem, fit)
+        captured.append(jump)
+        return jump
+
+    monkeypatch.setattr(armature, "jump_stage", spy)
+    va, ia, i_f, w = held_windows[0]
+    kw = dict(rng=0, intersample="smooth", fit_shift=False, shift=0.0, voltage_alias=ALIAS)
+    carried = estimate_armature(va, ia, i_f, w, 1.0 / FS, **kw)
+    monkeypatch.setattr(stages, "JUMP_CORRECTED", True)
+    corrected = estimate_armature(va, ia, i_f, w, 1.0 / FS, **kw)
+    jump = captured[-1]
+    assert jump is not None and abs(jump.size) > 2.0 * jump.std  # measured, not the prior
+    assert np.log(corrected.resistance_ohm / carried.resistance_ohm) == pytest.approx(
+        jump.delta[0], rel=1e-9
+    )
+    assert corrected.std["R"] < carried.std["R"]
