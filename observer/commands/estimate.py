@@ -290,6 +290,20 @@ def _notes(
         + ("suspect = identified, but a warning below doubts the data; " if suspect else "")
         + "none = not identified"
     )
+    for c, values in report.items():
+        fit = values.get("voltage_filter")
+        if fit is None:
+            continue
+        if fit["alias"] is not None:
+            lines.append(
+                f"{c} voltage filter (front ends not configured): {fit['text']}, as "
+                f"{fit['jumps']} of the converter's jumps show it; tell [chain] the real one"
+            )
+        else:
+            lines.append(
+                f"{c} voltage filter (front ends not configured): not identified "
+                f"({fit['reason']}); an RC at fs/4, the weakest in use, assumed"
+            )
     arm = report.get("armature")
     if arm and "K" in arm:
         at = f" at the mean field current ({eng(arm['if_mean'], 'A')})" if "kphi" in arm else ""

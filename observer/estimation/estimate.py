@@ -9,6 +9,7 @@ settings (and optional search ranges) of an
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -17,7 +18,11 @@ import numpy as np
 
 from observer.estimation.armature import estimate_armature
 from observer.estimation.field import estimate_field
-from observer.estimation.filter_id import IDENTIFIED_WINDINGS, identify_voltage_filter
+from observer.estimation.filter_id import (
+    IDENTIFIED_WINDINGS,
+    FilterFit,
+    identify_voltage_filter,
+)
 from observer.estimation.frontend import applied_mismatch, winding_front_ends
 from observer.estimation.ranges import EstimationError, SearchRange
 from observer.estimation.result import CircuitEstimate
@@ -83,15 +88,17 @@ def estimate_recording(
             "intersample": chain.intersample if chain is not None else "auto",
             "front_ends": winding_front_ends(chain, circuit),
         }
+        fit = None
         if (
             circuit in IDENTIFIED_WINDINGS
             and chain_kw["front_ends"] is None
             and chain_kw["intersample"] in ("auto", "smooth")
         ):
-            chain_kw["voltage_alias"] = voltage_alias(rec, circuit, prefix)
+            fit = voltage_filter(rec, circuit, prefix)
+            chain_kw["voltage_alias"] = fit.alias
         try:
             first = _estimate(circuit, rec, rng, cfg, common, chain_kw)
-            out[circuit] = with_learned_mismatch(
+            est = with_learned_mismatch(
                 first,
                 lambda circuit=circuit, chain_kw=chain_kw, **kw: _estimate(
                     circuit, rec, np.random.default_rng([cfg.seed, CIRCUITS.index(circuit)]),
@@ -100,13 +107,16 @@ def estimate_recording(
             )  # fmt: skip
         except EstimationError as exc:
             raise EstimationError(f"{prefix}{circuit} circuit: {exc}") from None
+        if fit is not None and est.intersample == "smooth":
+            est = dataclasses.replace(est, voltage_filter={**fit.to_dict(), "text": fit.text})
+        out[circuit] = est
     return out
 
 
-def voltage_alias(rec: Any, circuit: str, prefix: str = "") -> float | None:
-    """The untold voltage filter's aliasing factor, identified from the converter's jumps
-    in the recording's voltage of ``circuit`` (None: not identified; the weakest filter in
-    use is then assumed)."""
+def voltage_filter(rec: Any, circuit: str, prefix: str = "") -> FilterFit:
+    """The untold voltage filter, identified from the converter's jumps in the recording's
+    voltage of ``circuit`` (its ``alias`` None: not identified; the weakest filter in use is
+    then assumed)."""
     channel = CIRCUIT_CHANNELS[circuit][0]
     fit = identify_voltage_filter(np.asarray(rec[channel], dtype=float), rec.dt)
     if fit.alias is None:
@@ -117,7 +127,7 @@ def voltage_alias(rec: Any, circuit: str, prefix: str = "") -> float | None:
             "factor %.4f", prefix, circuit, fit.jumps, fit.text, fit.rms_v,
             fit.alias,
         )  # fmt: skip
-    return fit.alias
+    return fit
 
 
 def with_learned_mismatch(

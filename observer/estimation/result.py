@@ -66,6 +66,11 @@ class CircuitEstimate:
         operating point shares: a bias that averaging windows does not shrink (the
         voltage sensor's offset, the alias of converter jumps locked to the samples;
         :func:`~observer.estimation.stages.std_stage`). Empty: none known.
+    voltage_filter : dict or None
+        Untold front ends: the voltage channel's filter as the converter's jumps showed it
+        (:meth:`~observer.estimation.filter_id.FilterFit.to_dict`, with its ``text`` in the
+        ``[chain]`` grammar; ``alias`` None: not identified, the weakest filter in use
+        assumed). None: not tried (configured front ends, a held voltage, a single window).
     """
 
     circuit: str
@@ -90,6 +95,7 @@ class CircuitEstimate:
     shared_std: Mapping[str, float] = field(default_factory=dict)
     mismatch_size: float = math.nan
     mismatch_shift: float = math.nan
+    voltage_filter: Mapping[str, object] | None = None
 
     @property
     def time_constant_s(self) -> float:
@@ -132,6 +138,8 @@ class CircuitEstimate:
             out["shared_std"] = dict(self.shared_std)
         if self.note:
             out["note"] = self.note
+        if self.voltage_filter is not None:
+            out["voltage_filter"] = dict(self.voltage_filter)
         out["iterations"] = self.pso.n_iterations
         out["evaluations"] = self.pso.n_evaluations
         out["search_range"] = {

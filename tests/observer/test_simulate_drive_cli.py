@@ -151,3 +151,23 @@ def test_one_chain_description_for_simulate_and_estimate(tmp_path, capsys):
             "--particles", "20", "--iterations", "20"]  # fmt: skip
     assert main(argv) == 0
     assert '"field"' in capsys.readouterr().out
+
+
+def test_estimate_says_which_voltage_filter_the_jumps_showed(tmp_path, capsys):
+    """Front ends not told: `estimate` identifies the voltage filter from the converter's jumps,
+    and says so (its JSON carries it per circuit; the text names it)."""
+    import json
+
+    rec = tmp_path / "r.mcap"
+    assert main(["simulate", str(rec), "--duration", "4", "--rate", "5000"]) == 0  # realistic
+    capsys.readouterr()
+    common = ["--particles", "20", "--iterations", "20"]
+    assert main(["estimate", str(rec), "--json", *common]) == 0
+    out = json.loads(capsys.readouterr().out)
+    for circuit in ("field", "armature"):
+        fit = out[circuit]["voltage_filter"]
+        assert fit["text"].startswith("butter2@fs/"), fit  # the preset's butter2 at fs/4
+        assert 0.0141 < fit["alias"] < 0.0142 * 1.2
+    assert main(["estimate", str(rec), *common]) == 0
+    text = capsys.readouterr().out
+    assert "field voltage filter (front ends not configured): butter2@fs/" in text
