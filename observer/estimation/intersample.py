@@ -473,17 +473,14 @@ def jump_runs(v: np.ndarray, transitions: np.ndarray) -> tuple[np.ndarray, np.nd
     n = v.shape[0]
     if n < 2 or not np.any(transitions):
         return np.zeros(0, dtype=np.int64), np.zeros(0)
-    # A settling jump can leave a sample or two on its smooth curve by chance: runs so close
-    # belong to one jump.
-    t = transitions.copy()
-    for g in np.flatnonzero(t[:-1] & ~t[1:]) + 1:  # the first interval of each gap
-        for width in (1, 2):
-            if g + width < t.shape[0] and t[g + width]:
-                t[g : g + width] = True
-                break
-    edges = np.diff(np.concatenate([[0], t.astype(np.int8), [0]]))
+    edges = np.diff(np.concatenate([[0], transitions.astype(np.int8), [0]]))
     starts = np.flatnonzero(edges == 1)
     ends = np.flatnonzero(edges == -1)  # one past the run's last interval = sample after it
+    # A settling jump can leave a sample or two on its smooth curve by chance: runs so close
+    # (a gap of one or two intervals) belong to one jump.
+    apart = starts[1:] - ends[:-1] > 2
+    starts = starts[np.concatenate([[True], apart])]
+    ends = ends[np.concatenate([apart, [True]])]
     return starts, v[np.minimum(ends, n - 1)] - v[starts]
 
 
