@@ -620,6 +620,33 @@ def _solve_tall(
 SHIFT_STEP = 1e-2
 
 
+def _nuisance_step(
+    base: np.ndarray,
+    column: np.ndarray,
+    perpendicular: np.ndarray,
+    move: np.ndarray,
+    along: np.ndarray,
+    residual: np.ndarray,
+    tau_samples: float,
+) -> tuple[float, np.ndarray, float]:
+    """A nuisance ``column`` beside the fit's ``base``, measured in its ``residual``.
+
+    The coefficient comes from the column's part the base cannot take up
+    (``perpendicular``); with ``move`` and ``along`` (the base's least squares of the
+    column and of the residual) it gives the joint Gauss-Newton step, the base's
+    parameters then the coefficient; last, the coefficient's sandwich std. A column
+    that leaves no trace: ``(nan, step, inf)``; an std that cannot be had: ``inf``.
+    """
+    cc = float(perpendicular @ perpendicular)
+    coefficient = float(perpendicular @ residual) / cc if cc > 0.0 else math.nan
+    step = np.append(along - move * coefficient, coefficient)
+    if not math.isfinite(coefficient):
+        return coefficient, step, math.inf
+    augmented = np.column_stack([base, column])
+    s = float(crlb_std(augmented, residual - augmented @ step, tau_samples)[-1])
+    return coefficient, step, s if math.isfinite(s) else math.inf
+
+
 def _untold_mismatch(
     problem: WindingProblem,
     fit: PolishedFit,
@@ -669,18 +696,11 @@ def _untold_mismatch(
     prior_share = 1.0
     learned = (problem.mismatch_applied, shift)
     for j in range(shapes.shape[1]):
-        c = perpendicular[:, j]
-        cc = float(c @ c)
-        coefficient = float(c @ residual) / cc if cc > 0.0 else math.nan
-        # The joint Gauss-Newton step with the column beside the base.
-        step = np.append(along[:, -1] - along[:, j] * coefficient, coefficient)
-        augmented = np.column_stack([base, shapes[:, j]])
+        coefficient, step, s = _nuisance_step(
+            base, shapes[:, j], perpendicular[:, j], along[:, j], along[:, -1], residual,
+            tau_samples,
+        )  # fmt: skip
         size = -coefficient
-        s = (
-            float(crlb_std(augmented, residual - augmented @ step, tau_samples)[-1])
-            if math.isfinite(coefficient)
-            else math.inf
-        )
         if not (math.isfinite(size) and math.isfinite(s)):
             size, s = 0.0, math.inf
         var = 1.0 if math.isinf(s) else s * s / (1.0 + s * s)
@@ -788,27 +808,22 @@ def jump_stage(problem: WindingProblem, fit: PolishedFit) -> JumpAlias | None:
     base = fit.jacobian
     residual = fit.point.residual
     q, r = np.linalg.qr(base)
-    move = _solve_tall(base, column[:, None], (q, r))[:, 0]
+    move, along = _solve_tall(base, np.column_stack([column, residual]), (q, r)).T
     perpendicular = column - q @ (q.T @ column)
-    cc = float(perpendicular @ perpendicular)
-    if not cc > 0.0:
-        return None
-    coefficient = float(perpendicular @ residual) / cc
-    along = _solve_tall(base, residual[:, None], (q, r))[:, 0]
-    step = np.append(along - move * coefficient, coefficient)
-    augmented = np.column_stack([base, column])
     tau_samples = math.exp(theta[1] - theta[0]) / problem.dt
-    s = float(crlb_std(augmented, residual - augmented @ step, tau_samples)[-1])
+    coefficient, _, s = _nuisance_step(
+        base, column, perpendicular, move, along, residual, tau_samples
+    )
+    if not math.isfinite(coefficient):
+        return None
     prior = problem.jump_alias
-    if not math.isfinite(s):
-        s = math.inf
     shrink = 1.0 if math.isinf(s) else prior * prior / (prior * prior + s * s)
     posterior = prior if math.isinf(s) else prior * s / math.hypot(prior, s)
     k = 3 if problem.fits_k else 2
     delta = np.zeros(3)
     spread = np.zeros(3)
     common = np.zeros(3)
-    size = 0.0 if math.isinf(s) or not math.isfinite(coefficient) else -coefficient * shrink
+    size = 0.0 if math.isinf(s) else -coefficient * shrink
     if JUMP_CORRECTED:
         delta[:k] = -move[:k] * size
         spread[:k] = np.abs(move[:k]) * posterior
