@@ -116,28 +116,33 @@ def run_case(
     # Untold: the voltages' filters identified from the converter's jumps, as `dcobserver
     # estimate` does from the whole recording (the daemon from a window once the chain is
     # decided); ``--no-filter-id``: the weakest filter in use assumed, as before.
-    alias = {
-        w: identify_voltage_filter(sig[v], dt).alias
+    fits = {
+        w: identify_voltage_filter(sig[v], dt)
         if fe[w] is None and identify and w in IDENTIFIED_WINDINGS
         else None
         for w, v in (("field", "vf"), ("armature", "va"))
     }
+    # The identified filter's aliasing factor, and the filter itself (its jumps put back).
+    told = {
+        w: {"voltage_alias": fit.alias, "identified_filter": fit.best if fit.alias else None}
+        if fit is not None
+        else {}
+        for w, fit in fits.items()
+    }
     kw = dict(n_particles=40, max_iterations=40, rng=0)
     whole_f = estimate_field(
-        sig["vf"], sig["if"], dt, front_ends=fe["field"], voltage_alias=alias["field"], **kw
+        sig["vf"], sig["if"], dt, front_ends=fe["field"], **told["field"], **kw
     )
     whole_a = estimate_armature(
         sig["va"], sig["ia"], sig["if"], sig["omega"], dt, front_ends=fe["armature"],
-        voltage_alias=alias["armature"], **kw,
+        **told["armature"], **kw,
     )  # fmt: skip
     # Untold channels that differ like the commonest pair: learned and corrected for, as
     # `dcobserver estimate` does (the daemon learns it over its first windows).
     learned = {"field": whole_f.mismatch_size, "armature": whole_a.mismatch_size}
     whole_f = with_learned_mismatch(
         whole_f,
-        functools.partial(
-            estimate_field, sig["vf"], sig["if"], dt, voltage_alias=alias["field"], **kw
-        ),
+        functools.partial(estimate_field, sig["vf"], sig["if"], dt, **told["field"], **kw),
     )
     whole_a = with_learned_mismatch(
         whole_a,
@@ -148,7 +153,7 @@ def run_case(
             sig["if"],
             sig["omega"],
             dt,
-            voltage_alias=alias["armature"],
+            **told["armature"],
             **kw,
         ),
     )
@@ -164,13 +169,13 @@ def run_case(
         f = estimate_field(
             sig["vf"][s], sig["if"][s], dt, intersample=whole_f.intersample,
             shift=whole_f.shift_samples, front_ends=fe["field"], mismatch=learned["field"],
-            voltage_alias=alias["field"], **kw_w,
+            **told["field"], **kw_w,
         )  # fmt: skip
         a = estimate_armature(
             sig["va"][s], sig["ia"][s], sig["if"][s], sig["omega"][s], dt,
             intersample=whole_a.intersample, shift=whole_a.shift_samples,
             front_ends=fe["armature"], mismatch=learned["armature"],
-            voltage_alias=alias["armature"], **kw_w,
+            **told["armature"], **kw_w,
         )  # fmt: skip
         est = np.array([f.resistance_ohm, f.inductance_h, a.resistance_ohm, a.inductance_h,
                         a.emf_constant_h])  # fmt: skip

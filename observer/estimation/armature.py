@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from observer.estimation import dealias
 from observer.estimation.frontend import FrontEnd
 from observer.estimation.intersample import choose_model
 from observer.estimation.mechanics import smooth_speed
@@ -40,6 +41,9 @@ from observer.estimation.stages import (
     std_stage,
 )
 
+#: This winding's filtered jumps are put back between its samples (:mod:`.dealias`).
+DEALIASED = 'armature' in dealias.WINDINGS
+
 
 def armature_problem(
     va: np.ndarray,
@@ -58,6 +62,7 @@ def armature_problem(
     mismatch: float | None = None,
     fit_speed: bool = True,
     voltage_alias: float | None = None,
+    identified_filter: str | None = None,
 ) -> WindingProblem:
     """The armature's :class:`~observer.estimation.problem.WindingProblem` over a window
     (``fit_speed``: the EMF's speed from the shaft's equation, else the samples as measured)."""
@@ -75,7 +80,8 @@ def armature_problem(
         emf_constant=emf_constant, fit_shift=fit_shift, shift=shift,
         fit_lag=fit_lag and model == "smooth", lag=lag if model == "smooth" else 0.0,
         also_checked=(i_f, omega), front_ends=front_ends, mismatch=mismatch,
-        voltage_alias=voltage_alias,
+        voltage_alias=voltage_alias, reconstruct_jumps=DEALIASED,
+        identified_filter=identified_filter,
     )  # fmt: skip
 
 
@@ -109,6 +115,7 @@ def estimate_armature(
     mismatch: float | None = None,
     fit_speed: bool = True,
     voltage_alias: float | None = None,
+    identified_filter: str | None = None,
 ) -> CircuitEstimate:
     """Estimate ``(Ra, La, K)`` of the armature from ``va, ia`` and measured ``if, omega``.
 
@@ -138,6 +145,8 @@ def estimate_armature(
     voltage_alias : float, optional
         The untold voltage filter's aliasing factor identified from the converter's jumps
         (see :func:`observer.estimation.estimate_field`).
+    identified_filter : str, optional
+        The identified filter itself (see :func:`observer.estimation.estimate_field`).
     Other parameters
         As for :func:`estimate_field`.
     """
@@ -145,6 +154,7 @@ def estimate_armature(
         va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=intersample,
         fit_shift=fit_shift, shift=shift, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
         mismatch=mismatch, fit_speed=fit_speed, voltage_alias=voltage_alias,
+        identified_filter=identified_filter,
     )  # fmt: skip
     n = problem.current.shape[0]
     rng_ = np.random.default_rng(rng)
@@ -177,6 +187,7 @@ def estimate_armature(
             va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=problem.inp.model,
             fit_shift=fit_shift, shift=s, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
             mismatch=mismatch, fit_speed=fit_speed, voltage_alias=voltage_alias,
+            identified_filter=identified_filter,
         ),
         polish=polish,
     )  # fmt: skip

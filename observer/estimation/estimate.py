@@ -96,6 +96,8 @@ def estimate_recording(
         ):
             fit = voltage_filter(rec, circuit, prefix)
             chain_kw["voltage_alias"] = fit.alias
+            if fit.alias is not None:
+                chain_kw["identified_filter"] = fit.best
         try:
             first = _estimate(circuit, rec, rng, cfg, common, chain_kw)
             est = with_learned_mismatch(

@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from observer.estimation import dealias
 from observer.estimation.frontend import FrontEnd
 from observer.estimation.intersample import choose_model
 from observer.estimation.problem import coverage_note, make_problem, pwm_note
@@ -28,6 +29,9 @@ from observer.estimation.stages import (
     specification_stage,
     std_stage,
 )
+
+#: This winding's filtered jumps are put back between its samples (:mod:`.dealias`).
+DEALIASED = 'field' in dealias.WINDINGS
 
 
 def estimate_field(
@@ -54,6 +58,7 @@ def estimate_field(
     settled_rms: float | None = None,
     mismatch: float | None = None,
     voltage_alias: float | None = None,
+    identified_filter: str | None = None,
 ) -> CircuitEstimate:
     """Estimate ``(Rf, Lf)`` of the field winding from ``vf`` (V) and ``if`` (A).
 
@@ -95,6 +100,11 @@ def estimate_field(
         Front ends not told: the voltage filter's aliasing factor identified from the
         converter's jumps (:func:`~observer.estimation.filter_id.identify_voltage_filter`);
         None: the weakest filter in use is assumed.
+    identified_filter : str, optional
+        Front ends not told: the identified filter itself
+        (:attr:`~observer.estimation.filter_id.FilterFit.best`), through which the voltage's
+        jumps are put back between its samples (:mod:`~observer.estimation.dealias`; a
+        configured filter is used so without it).
     """
     vf = kernel_array(vf)
     i_f = kernel_array(i_f)
@@ -105,6 +115,7 @@ def estimate_field(
     problem = make_problem(
         vf, i_f, dt, model, switching=switching, fit_shift=fit_shift, shift=shift,
         front_ends=front_ends, mismatch=mismatch, voltage_alias=voltage_alias,
+        reconstruct_jumps=DEALIASED, identified_filter=identified_filter,
     )  # fmt: skip
     settings = SwarmSettings(
         n_particles, max_iterations, schedule, w, x0, init_range, explore_fraction, tol
@@ -120,6 +131,7 @@ def estimate_field(
         lambda s: make_problem(
             vf, i_f, dt, model, switching=switching, fit_shift=fit_shift, shift=s,
             front_ends=front_ends, mismatch=mismatch, voltage_alias=voltage_alias,
+            reconstruct_jumps=DEALIASED, identified_filter=identified_filter,
         ),
         polish=polish,
     )  # fmt: skip

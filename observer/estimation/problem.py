@@ -20,6 +20,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from observer.estimation import intersample_kernels as ik
+from observer.estimation.dealias import (
+    RESIDUAL_ALIAS,
+    JumpReconstruction,
+    identified_front_end,
+)
+from observer.estimation.dealias import reconstruction as reconstruct
 from observer.estimation.frontend import (
     UNKNOWN_MISMATCH,
     FrontEnd,
@@ -97,6 +103,9 @@ class WindingProblem:
     jump_alias : float
         The front end's aliasing factor those jumps are seen through
         (:func:`~observer.estimation.intersample.alias_factor`, or the identified one).
+    reconstruction : JumpReconstruction or None
+        The filtered jumps put back between the samples
+        (:mod:`~observer.estimation.dealias`): every moment of the voltage is corrected by it.
     """
 
     voltage: np.ndarray
@@ -114,6 +123,7 @@ class WindingProblem:
     mismatch_applied: float = 0.0
     jumps: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
     jump_alias: float = 0.0
+    reconstruction: JumpReconstruction | None = field(default=None, repr=False)
     _mu_emf: np.ndarray | None = field(default=None, repr=False)
     _mu_cache: dict[tuple[float, float], np.ndarray] = field(default_factory=dict, repr=False)
 
@@ -157,6 +167,8 @@ class WindingProblem:
                 lagged = np.array(self.voltage, dtype=np.float64)
                 ik.lag_samples(mu, self.voltage, seg.starts, seg.ends, lag_, lagged)
                 mu = smooth_moments(lagged, seg, 0.0)
+            if self.reconstruction is not None:
+                mu = self.reconstruction.correct(mu, key[0])
             if len(self._mu_cache) > 64:
                 self._mu_cache.clear()
             self._mu_cache[key] = mu
@@ -184,6 +196,7 @@ class WindingProblem:
             self.voltage, self.current, self.dt, inp, self.emf, self.emf_constant,
             self.fit_shift, self.fit_lag, lag_, self.alias_v, self.untold_front_end,
             self.alias_locked, self.mismatch_applied, self.jumps, self.jump_alias,
+            self.reconstruction,
         )  # fmt: skip
 
     # ------------------------------------------------------------- the swarm
@@ -485,6 +498,8 @@ def make_problem(
     front_ends: tuple[FrontEnd, FrontEnd] | None = None,
     mismatch: float | None = None,
     voltage_alias: float | None = None,
+    reconstruct_jumps: bool = False,
+    identified_filter: str | None = None,
 ) -> WindingProblem:
     """A :class:`WindingProblem` for voltage samples under intersample ``model``.
 
@@ -498,6 +513,9 @@ def make_problem(
     edges, which that spoils, leave the segments. Not told them, a filtered voltage is
     corrected by the ``mismatch`` of the channels learned
     (:func:`~observer.estimation.frontend.applied_mismatch`), its edges likewise.
+    ``reconstruct_jumps``: a filtered voltage's jumps are put back between its samples
+    (:mod:`~observer.estimation.dealias`) through its configured filter or, untold, the one
+    ``identified_filter`` names (:attr:`~observer.estimation.filter_id.FilterFit.best`).
     """
     raw_voltage = voltage
     valid = ~(rail_samples(voltage) | rail_samples(current))
@@ -542,6 +560,7 @@ def make_problem(
     alias_locked: tuple[bool, ...] = ()
     jumps: tuple[np.ndarray, np.ndarray] | None = None
     jump_alias = 0.0
+    reconstruction: JumpReconstruction | None = None
     if model == "smooth":
         # Jumps between samples that a smooth reconstruction spreads over their intervals
         # (a switched model leaves them out of its segments; a held voltage has none).
@@ -555,18 +574,32 @@ def make_problem(
             # Untold, but identified from the converter's jumps (:mod:`.filter_id`).
             factor = voltage_alias
         t = sw.transition_mask
+        jumps = jump_runs(raw_voltage, t)
+        if reconstruct_jumps:
+            seen = known_v if known_v is not None else identified_front_end(identified_filter)
+            reconstruction = reconstruct(
+                raw_voltage, dt, jumps[0], seen, front_ends[1] if front_ends is not None else None
+            )
+            if reconstruction is not None:
+                # What the jumps' fit leaves of their alias.
+                factor *= RESIDUAL_ALIAS
         bounds = [
             alias_bias(raw_voltage[p.start : p.stop + 1], t[p], factor)
             for p in alias_pieces(t.shape[0])
         ]
         alias_v = tuple(b for b, _ in bounds)
         alias_locked = tuple(locked for _, locked in bounds)
-        jumps = jump_runs(raw_voltage, t)
         jump_alias = factor
     inp = build_input(voltage, model, shift=shift, switching=switching, valid=valid, dt=dt)  # type: ignore[arg-type]
+    if reconstruction is not None:
+        inp = InputModel(
+            inp.model, reconstruction.correct(inp.mu, inp.shift), inp.segments, inp.shift,
+            inp.switching,
+        )  # fmt: skip
     problem = WindingProblem(
         voltage, current, dt, inp, emf, emf_constant, fit_shift, fit_lag, lag, alias_v,
         untold_front_end=front_ends is None and model == "smooth", alias_locked=alias_locked,
         mismatch_applied=applied, jumps=jumps, jump_alias=jump_alias,
+        reconstruction=reconstruction,
     )  # fmt: skip
     return problem.with_shift(shift, lag) if lag else problem

@@ -507,6 +507,8 @@ class SlidingWindowObserver:
             out["mismatch"] = state.mismatch
             if state.voltage_filter is not None and out["front_ends"] is None:
                 out["voltage_alias"] = state.voltage_filter.alias
+                if state.voltage_filter.alias is not None:
+                    out["identified_filter"] = state.voltage_filter.best
         return out
 
     def _learn_chain(
