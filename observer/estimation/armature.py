@@ -42,7 +42,7 @@ from observer.estimation.stages import (
 )
 
 #: This winding's filtered jumps are put back between its samples (:mod:`.dealias`).
-DEALIASED = 'armature' in dealias.WINDINGS
+DEALIASED = "armature" in dealias.WINDINGS
 
 
 def armature_problem(

@@ -45,10 +45,14 @@ from observer.estimation.filter_id import _mains, _parse, _responses, poles_resi
 from observer.estimation.frontend import FrontEnd, apply_relative, filter_sections
 from observer.estimation.intersample import Segments, smooth_moments
 
-#: Windings whose filtered jumps are reconstructed: the field (a single-phase bridge's
-#: firings lock to the samples at every common rate on 50 Hz mains). The armature's 6-pulse
-#: jumps come 6.7 samples apart at 2 kHz, too close for one jump's fit; its common area error
-#: is measured instead (:func:`~observer.estimation.stages.jump_stage`).
+#: Windings whose filtered jumps are put back: the field, whose single-phase bridge's firings
+#: lock to the samples at every common rate on 50 Hz mains. Not the armature: its 6-pulse
+#: jumps come 6.7 samples apart at 2 kHz, too close to fit one by one, and at 5 and 10 kHz,
+#: where they can be fitted, putting them back took the held-speed windows' Ra from +3.0 to
+#: +0.65 % but left more of the other windows' published Ra outside 2.5 std (P-12,
+#: ``bench.window_honesty``: 86-93 % untold behind an RC or beside a Bessel current filter,
+#: 89-98 % configured, against 98-100 % without). Its common area error is carried instead
+#: (:func:`~observer.estimation.stages.jump_stage`).
 WINDINGS = ("field",)
 
 #: Intervals on each side of a jump whose moments are corrected (the interpolant's error

@@ -31,7 +31,7 @@ from observer.estimation.stages import (
 )
 
 #: This winding's filtered jumps are put back between its samples (:mod:`.dealias`).
-DEALIASED = 'field' in dealias.WINDINGS
+DEALIASED = "field" in dealias.WINDINGS
 
 
 def estimate_field(
