@@ -300,11 +300,13 @@ def find_switching(v: np.ndarray, dt: float | None = None) -> Switching:
     # run forward until the next sample lies on the smooth curve after it.
     transitions = jumps.copy()
     ends = np.flatnonzero(jumps & ~np.concatenate([jumps[1:], [False]]))
-    for k in ends:
-        j = k + 1
-        while j < n - 1 and j - k <= MAX_SETTLING and not settled[j]:
-            transitions[j] = True
-            j += 1
+    # (All runs at once, a step of the settling at a time.)
+    going = np.ones(ends.shape[0], dtype=bool)
+    for step in range(1, MAX_SETTLING + 1):
+        j = ends + step
+        going &= j < n - 1
+        going[going] &= ~settled[j[going]]
+        transitions[j[going]] = True
     return Switching(jumps, share, min(scales), transitions)
 
 
