@@ -325,7 +325,9 @@ def correction_table(voltage: FrontEnd, current: FrontEnd | None, dt: float) -> 
     relative = current is not None and current != voltage
     target = current if relative and current is not None else voltage
     pt, rt = poles(target)
-    lag = (target.delay_s - voltage.delay_s) / dt
+    # A jump fitted at t0 in the voltage's samples (taken d_v late) is seen by the current's
+    # channel (taken d_i late) at t0 + (d_v - d_i) on the nominal grid.
+    lag = (voltage.delay_s - target.delay_s) / dt
     n = 2 * _TABLE_SAMPLES
     k = np.arange(-_TABLE_SAMPLES, _TABLE_SAMPLES, dtype=float)
     out = np.zeros((2, FRACTIONS, 2 * HALF_WIDTH + 1, 3))

@@ -128,7 +128,9 @@ class FrontEnd:
         h = sections_response(
             filter_sections(self.filter, self.order, self.cutoff_at(sample_rate_hz)), f
         )
-        h = h * np.exp(-2j * math.pi * f * self.delay_s)
+        # Sampled ``delay_s`` after the nominal instant, the sample holds the signal of that
+        # later instant: an advance, ``exp(+j w delay)``, on the nominal grid.
+        h = h * np.exp(2j * math.pi * f * self.delay_s)
         if self.averaging:
             period = 1.0 / sample_rate_hz
             # Mean over the period ending at the instant: delay T/2, sinc amplitude.

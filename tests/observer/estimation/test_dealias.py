@@ -7,6 +7,7 @@ the filter by a fine discretisation, its interval means taken point by point.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -78,15 +79,19 @@ def test_the_fit_finds_each_firing_between_the_samples(kind: str) -> None:
 
 
 @pytest.mark.parametrize(
-    ("voltage", "current"),
-    [("rc1", None), ("butter2", None), ("rc1", "butter2")],
+    ("voltage", "current", "late"),
+    [("rc1", None, 0.0), ("butter2", None, 0.0), ("rc1", "butter2", 0.0), ("rc1", "butter2", 0.3)],
 )
-def test_the_moments_are_those_of_the_filtered_waveform(voltage: str, current: str | None) -> None:
-    fe_v = front(voltage)
+def test_the_moments_are_those_of_the_filtered_waveform(
+    voltage: str, current: str | None, late: float
+) -> None:
+    """``late``: the voltage's channel is sampled that many periods after the current's (a
+    multiplexed ADC), configured as its delay."""
+    fe_v = dataclasses.replace(front(voltage), delay_s=late / FS)
     fe_i = front(current) if current else None
     tf, v, _ = bridge_voltage()
     n = int(FS)
-    samples = np.interp(np.arange(n), tf, through(fe_v, v))
+    samples = np.interp(np.arange(n) + late, tf, through(fe_v, v))
     # What the current's channel sees of the voltage: the target of the moments.
     target = through(fe_i if fe_i is not None else fe_v, v).reshape(n, SUB)[: n - 1].mean(axis=1)
     seen = apply_relative(samples, 1 / FS, fe_v, fe_i) if fe_i is not None else samples
