@@ -41,7 +41,14 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from observer.estimation.filter_id import _mains, _parse, _responses, poles_residues
+from observer.estimation.filter_id import (
+    GOLDEN,
+    _mains,
+    _parse,
+    _responses,
+    normal_solve,
+    poles_residues,
+)
 from observer.estimation.frontend import FrontEnd, apply_relative, filter_sections
 from observer.estimation.intersample import Segments, smooth_moments
 
@@ -73,7 +80,6 @@ SEARCH_BEFORE = 1.0
 SEARCH_AFTER = 1.5
 GRID = 11
 GOLDEN_STEPS = 10
-GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
 
 #: Fewer of a window's jumps fitted than this share (jumps closer together than a fit needs:
 #: a chopper switching near the sample rate), nothing is put back.
@@ -120,7 +126,7 @@ def _jump_rss(
     jump's responses at ``t0``; the coefficients go to ``coef`` (cos, sin, 1, gc, gs, g1)."""
     m = y.shape[0]
     xb, gb, bb = base
-    x = np.empty((m, 6))
+    row = np.empty(6)
     buf = np.empty(3)
     g = np.zeros((6, 6))
     b = np.zeros(6)
@@ -129,61 +135,24 @@ def _jump_rss(
         for k in range(3):
             g[j, k] = gb[j, k]
     for a in range(m):
-        x[a, 0] = xb[a, 0]
-        x[a, 1] = xb[a, 1]
-        x[a, 2] = 1.0
+        row[0] = xb[a, 0]
+        row[1] = xb[a, 1]
+        row[2] = 1.0
         _responses(i0 + a - t0, w, p, r, buf)
-        x[a, 3] = buf[0]
-        x[a, 4] = buf[1]
-        x[a, 5] = buf[2]
+        row[3] = buf[0]
+        row[4] = buf[1]
+        row[5] = buf[2]
         for j in range(3, 6):
-            b[j] += x[a, j] * y[a]
+            b[j] += row[j] * y[a]
             for k in range(j + 1):
-                g[j, k] += x[a, j] * x[a, k]
+                g[j, k] += row[j] * row[k]
     for j in range(6):
         for k in range(j + 1, 6):
             g[j, k] = g[k, j]
-    d = np.empty(6)
-    for j in range(6):
-        d[j] = math.sqrt(g[j, j]) if g[j, j] > 0 else 1.0
-    for i in range(6):
-        b[i] /= d[i]
-        for j in range(6):
-            g[i, j] /= d[i] * d[j]
-        g[i, i] += 1e-10
-    ll = np.zeros((6, 6))
-    for j in range(6):
-        s = g[j, j]
-        for k in range(j):
-            s -= ll[j, k] * ll[j, k]
-        if s <= 0:
-            return np.inf
-        ll[j, j] = math.sqrt(s)
-        for i in range(j + 1, 6):
-            s = g[i, j]
-            for k in range(j):
-                s -= ll[i, k] * ll[j, k]
-            ll[i, j] = s / ll[j, j]
-    z = np.empty(6)
-    for i in range(6):
-        s = b[i]
-        for k in range(i):
-            s -= ll[i, k] * z[k]
-        z[i] = s / ll[i, i]
-    for i in range(5, -1, -1):
-        s = z[i]
-        for k in range(i + 1, 6):
-            s -= ll[k, i] * coef[k]
-        coef[i] = s / ll[i, i]
-    for i in range(6):
-        coef[i] /= d[i]
-    rss = 0.0
-    for a in range(m):
-        e = y[a]
-        for j in range(6):
-            e -= x[a, j] * coef[j]
-        rss += e * e
-    return rss
+    explained = normal_solve(g, b, coef)
+    if explained < 0.0:
+        return np.inf
+    return max(float(y @ y) - explained, 0.0)
 
 
 @njit(cache=True, nogil=True)

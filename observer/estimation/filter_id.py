@@ -223,9 +223,18 @@ def _rss(y: np.ndarray, w: float, t0: np.ndarray, p: np.ndarray, r: np.ndarray) 
             x[i, 3 + 3 * k] = buf[0]
             x[i, 4 + 3 * k] = buf[1]
             x[i, 5 + 3 * k] = buf[2]
-    # Normal equations, scaled to unit diagonal, solved by Cholesky with a small ridge.
-    a = x.T @ x
-    b = x.T @ y
+    explained = normal_solve(x.T @ x, x.T @ y, np.empty(m))
+    if explained < 0.0:
+        return np.inf
+    return max(float(y @ y) - explained, 0.0)
+
+
+@njit(cache=True, nogil=True)
+def normal_solve(a: np.ndarray, b: np.ndarray, coef: np.ndarray) -> float:
+    """Solve the normal equations ``a c = b`` (scaled to unit diagonal, with a small ridge, by
+    Cholesky; ``a`` and ``b`` are overwritten) into ``coef``; returns the explained sum of
+    squares ``b'c``, or -1 where ``a`` is not positive definite."""
+    m = b.shape[0]
     d = np.empty(m)
     for j in range(m):
         d[j] = math.sqrt(a[j, j]) if a[j, j] > 0 else 1.0
@@ -240,7 +249,7 @@ def _rss(y: np.ndarray, w: float, t0: np.ndarray, p: np.ndarray, r: np.ndarray) 
         for k in range(j):
             s -= ll[j, k] * ll[j, k]
         if s <= 0:
-            return np.inf
+            return -1.0
         ll[j, j] = math.sqrt(s)
         for i in range(j + 1, m):
             s = a[i, j]
@@ -253,7 +262,14 @@ def _rss(y: np.ndarray, w: float, t0: np.ndarray, p: np.ndarray, r: np.ndarray) 
         for k in range(i):
             s -= ll[i, k] * z[k]
         z[i] = s / ll[i, i]
-    return max(float(y @ y) - float(z @ z), 0.0)
+    for i in range(m - 1, -1, -1):
+        s = z[i]
+        for k in range(i + 1, m):
+            s -= ll[k, i] * coef[k]
+        coef[i] = s / ll[i, i]
+    for i in range(m):
+        coef[i] /= d[i]
+    return float(z @ z)
 
 
 @njit(cache=True, nogil=True)
