@@ -267,6 +267,7 @@ def _notes(
     report: dict[str, Any], limits: Mapping[str, Mapping[str, float]], warnings: list[str]
 ) -> list[str]:
     from observer.commands.display import K_EXPLAINED, NAMES, eng
+    from observer.estimation import dealias
 
     lines = []
     # Parameters that share a reason (a window the model cannot describe says it for each
@@ -295,9 +296,15 @@ def _notes(
         if fit is None:
             continue
         if fit["alias"] is not None:
+            put_back = (
+                ", its jumps put back between the samples through it"
+                if (c in dealias.WINDINGS)
+                else ""
+            )
             lines.append(
                 f"{c} voltage filter (front ends not configured): {fit['text']}, as "
-                f"{fit['jumps']} of the converter's jumps show it; tell [chain] the real one"
+                f"{fit['jumps']} of the converter's jumps show it{put_back}; tell [chain] the "
+                "real one"
             )
         else:
             lines.append(

@@ -171,3 +171,8 @@ def test_estimate_says_which_voltage_filter_the_jumps_showed(tmp_path, capsys):
     assert main(["estimate", str(rec), *common]) == 0
     text = capsys.readouterr().out
     assert "field voltage filter (front ends not configured): butter2@fs/" in text
+    # The field's jumps are put back through it (observer.estimation.dealias); not the armature's.
+    said = [ln for ln in text.splitlines() if " voltage filter " in ln]
+    lines = {ln.split(" voltage filter")[0]: ln for ln in said}
+    assert "its jumps put back between the samples" in lines["field"]
+    assert "put back" not in lines["armature"]
