@@ -200,6 +200,16 @@ CACHE_SIZE = 4096
 _cache: dict[tuple[object, ...], tuple[float, float, float] | None] = {}
 
 
+#: Samples the mains frequency is decided from.
+MAINS_SAMPLES = 4096
+
+
+@functools.lru_cache(maxsize=16)
+def _poles(sections: bytes, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~observer.estimation.filter_id.poles_residues` of ``sections`` (as bytes)."""
+    return poles_residues(np.frombuffer(sections, dtype=np.float64).reshape(-1, 3), dt)
+
+
 def fit_jumps(v: np.ndarray, dt: float, sections: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """``(m, 3)``: each fitted jump's instant (samples), value jump (V) and slope jump (V per
     sample) of ``v`` seen through filter ``sections``, from its first flagged intervals
@@ -212,8 +222,9 @@ def fit_jumps(v: np.ndarray, dt: float, sections: np.ndarray, starts: np.ndarray
     rows: list[tuple[float, float, float]] = []
     if count == 0:
         return np.empty((0, 3))
-    p, r = poles_residues(sections, dt)
-    w = 2.0 * math.pi * _mains(x, dt) * dt
+    p, r = _poles(sections.tobytes(), dt)
+    # (50 or 60 Hz: a few thousand samples decide it as well as the window.)
+    w = 2.0 * math.pi * _mains(x[:MAINS_SAMPLES], dt) * dt
     setup = (sections.tobytes(), dt, w)
     buf = np.empty(3)
     at = [int(k) for k in starts]
