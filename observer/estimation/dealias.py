@@ -93,16 +93,16 @@ RESIDUAL_ALIAS = 0.25
 
 
 @njit(cache=True, nogil=True)
-def _base(y: np.ndarray, i0: int, w: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The sine base's columns (cos, sin, 1) over ``y``'s samples from ``i0``, their Gram
-    block and their products with ``y``: the part of a jump's fit that its instant leaves."""
+def _base(y: np.ndarray, w: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sine base's columns (cos, sin, 1) over ``y``'s samples, their Gram block and
+    their products with ``y``: the part of a jump's fit that its instant leaves."""
     m = y.shape[0]
     x = np.empty((m, 3))
     g = np.zeros((3, 3))
     b = np.zeros(3)
     for a in range(m):
-        x[a, 0] = math.cos(w * (i0 + a))
-        x[a, 1] = math.sin(w * (i0 + a))
+        x[a, 0] = math.cos(w * a)
+        x[a, 1] = math.sin(w * a)
         x[a, 2] = 1.0
         for j in range(3):
             b[j] += x[a, j] * y[a]
@@ -114,7 +114,6 @@ def _base(y: np.ndarray, i0: int, w: float) -> tuple[np.ndarray, np.ndarray, np.
 @njit(cache=True, nogil=True)
 def _jump_rss(
     y: np.ndarray,
-    i0: int,
     t0: float,
     w: float,
     p: np.ndarray,
@@ -122,8 +121,9 @@ def _jump_rss(
     base: tuple[np.ndarray, np.ndarray, np.ndarray],
     coef: np.ndarray,
 ) -> float:
-    """Least squares of ``y`` (samples from ``i0``) on the sine base (:func:`_base`) and one
-    jump's responses at ``t0``; the coefficients go to ``coef`` (cos, sin, 1, gc, gs, g1)."""
+    """Least squares of ``y`` on the sine base (:func:`_base`) and one jump's responses at
+    ``t0`` (samples from ``y``'s first); the coefficients go to ``coef`` (cos, sin, 1, gc, gs,
+    g1)."""
     m = y.shape[0]
     xb, gb, bb = base
     row = np.empty(6)
@@ -138,7 +138,7 @@ def _jump_rss(
         row[0] = xb[a, 0]
         row[1] = xb[a, 1]
         row[2] = 1.0
-        _responses(i0 + a - t0, w, p, r, buf)
+        _responses(a - t0, w, p, r, buf)
         row[3] = buf[0]
         row[4] = buf[1]
         row[5] = buf[2]
@@ -162,31 +162,31 @@ def _fit_one(
     """Fit the jump whose first flagged interval is ``s`` of ``y`` (indices from 0, so the
     fit depends on the samples alone); ``out`` gets ``(t0, J, D)``; False: not fitted."""
     coef = np.empty(6)
-    base = _base(y, 0, w)
+    base = _base(y, w)
     best_t, best = 0.0, np.inf
     step = (SEARCH_BEFORE + SEARCH_AFTER) / (GRID - 1)
     for g in range(GRID):
         t = s - SEARCH_BEFORE + g * step
-        f = _jump_rss(y, 0, t, w, p, r, base, coef)
+        f = _jump_rss(y, t, w, p, r, base, coef)
         if f < best:
             best, best_t = f, t
     a, b = best_t - step, best_t + step
     x1, x2 = b - GOLDEN * (b - a), a + GOLDEN * (b - a)
-    f1 = _jump_rss(y, 0, x1, w, p, r, base, coef)
-    f2 = _jump_rss(y, 0, x2, w, p, r, base, coef)
+    f1 = _jump_rss(y, x1, w, p, r, base, coef)
+    f2 = _jump_rss(y, x2, w, p, r, base, coef)
     for _ in range(GOLDEN_STEPS):
         if f1 < f2:
             b, x2, f2 = x2, x1, f1
             x1 = b - GOLDEN * (b - a)
-            f1 = _jump_rss(y, 0, x1, w, p, r, base, coef)
+            f1 = _jump_rss(y, x1, w, p, r, base, coef)
         else:
             a, x1, f1 = x1, x2, f2
             x2 = a + GOLDEN * (b - a)
-            f2 = _jump_rss(y, 0, x2, w, p, r, base, coef)
+            f2 = _jump_rss(y, x2, w, p, r, base, coef)
     t = x1 if f1 < f2 else x2
     if min(f1, f2) > best:
         t = best_t
-    if not math.isfinite(_jump_rss(y, 0, t, w, p, r, base, coef)):
+    if not math.isfinite(_jump_rss(y, t, w, p, r, base, coef)):
         return False
     out[0] = t
     out[1] = coef[3] + coef[5]
@@ -222,10 +222,11 @@ def fit_jumps(v: np.ndarray, dt: float, sections: np.ndarray, starts: np.ndarray
     rows: list[tuple[float, float, float]] = []
     if count == 0:
         return np.empty((0, 3))
-    p, r = _poles(sections.tobytes(), dt)
+    filter_key = sections.tobytes()
+    p, r = _poles(filter_key, dt)
     # (50 or 60 Hz: a few thousand samples decide it as well as the window.)
     w = 2.0 * math.pi * _mains(x[:MAINS_SAMPLES], dt) * dt
-    setup = (sections.tobytes(), dt, w)
+    setup = (filter_key, dt, w)
     buf = np.empty(3)
     at = [int(k) for k in starts]
     for k, s in enumerate(at):
