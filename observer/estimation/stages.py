@@ -325,6 +325,43 @@ def _noise_draws(n: int, count: int, seed: int) -> np.ndarray:
     return out
 
 
+#: The band-limited moments of the noise draws, by window length, draws, segments and
+#: shift (:func:`_draw_moments`); at most :data:`DRAW_CACHE_SIZE` entries, oldest out first.
+_draw_cache: dict[tuple[object, ...], list[np.ndarray]] = {}
+DRAW_CACHE_SIZE = 8
+
+
+def _draw_moments(
+    problem: WindingProblem, theta: np.ndarray, count: int, seed: int
+) -> list[np.ndarray]:
+    """The moments of the fixed noise draws (:func:`_noise_draws`) through the problem's
+    intersample model at ``theta`` (:meth:`WindingProblem.input_moments`).
+
+    Held and averaged moments are the draws themselves, cheap. The band-limited ones
+    cost a spectrum and three inverse transforms a draw (8 draws: 6 ms of a 10 kHz
+    window) and depend only on the draws, the segments and the shift: once a chain is
+    decided its shift is held and a converter's window is one segment, so consecutive
+    windows ask for the same moments; they are kept (read-only), and a hit returns the
+    very arrays a miss computed, so the results (and replay) are unchanged.
+    """
+    n = problem.voltage.shape[0]
+    draws = _noise_draws(n, count, seed)
+    inp = problem.inp
+    if inp.model in ("hold", "averaged"):
+        return [problem.input_moments(theta, d) for d in draws]
+    key = (n, count, seed, inp.model, inp.segments.starts.tobytes(),
+           inp.segments.ends.tobytes(), float(problem.unpack(theta)[3]))  # fmt: skip
+    cached = _draw_cache.get(key)
+    if cached is None:
+        cached = [problem.input_moments(theta, d) for d in draws]
+        for moments in cached:
+            moments.flags.writeable = False
+        while len(_draw_cache) >= DRAW_CACHE_SIZE:
+            del _draw_cache[next(iter(_draw_cache))]
+        _draw_cache[key] = cached
+    return cached
+
+
 def averaged_noise(problem: WindingProblem, theta: np.ndarray) -> float:
     """Expected share of eq. (1) (A^2 per V^2) that unit white noise on the voltage adds.
 
@@ -333,8 +370,7 @@ def averaged_noise(problem: WindingProblem, theta: np.ndarray) -> float:
     own intersample model (held, averaged or band-limited); averaged over
     :data:`NOISE_DRAWS` fixed draws.
     """
-    draws = _noise_draws(problem.voltage.shape[0], NOISE_DRAWS, 0)
-    columns = problem.moment_columns(theta, [problem.input_moments(theta, d) for d in draws])
+    columns = problem.moment_columns(theta, _draw_moments(problem, theta, NOISE_DRAWS, 0))
     return float(np.sum(columns * columns)) / NOISE_DRAWS
 
 
@@ -356,8 +392,7 @@ def input_noise_std(
         inv = np.linalg.inv(jac.T @ jac)
     except np.linalg.LinAlgError:
         return np.zeros(jac.shape[1])
-    draws = _noise_draws(problem.voltage.shape[0], INPUT_NOISE_DRAWS, 1)
-    columns = problem.moment_columns(theta, [problem.input_moments(theta, d) for d in draws])
+    columns = problem.moment_columns(theta, _draw_moments(problem, theta, INPUT_NOISE_DRAWS, 1))
     moves = inv @ (jac.T @ columns)  # (parameters, draws)
     return math.sqrt(noise_var) * np.sqrt(np.mean(moves * moves, axis=1))
 

@@ -710,3 +710,26 @@ def test_the_std_covers_the_scatter_the_voltage_noise_causes():
         stds.append(est.std["L"])
     scatter = float(np.std(values, ddof=1))
     assert 0.8 * scatter <= float(np.median(stds)) <= 1.6 * scatter, (scatter, np.median(stds))
+
+
+def test_the_noise_draws_band_limited_moments_are_kept_for_the_next_window_alike(window):
+    """A decided chain holds its shift and a window is one segment: the draws' moments are
+    computed once and the next window's problem gets the very same arrays; another shift
+    computes them anew. Kept or not, they are the draws read through the problem's model."""
+    from observer.estimation import stages
+
+    stages._draw_cache.clear()
+    problem, _, fit = _polished(window, "smooth", 5)
+    first = stages._draw_moments(problem, fit.theta, 3, 1)
+    again = stages._draw_moments(_problem(window, "smooth"), fit.theta, 3, 1)
+    assert all(a is b for a, b in zip(first, again, strict=True))
+    draws = stages._noise_draws(problem.voltage.shape[0], 3, 1)
+    for kept, draw in zip(first, draws, strict=True):
+        np.testing.assert_array_equal(kept, problem.input_moments(fit.theta, draw))
+        assert not kept.flags.writeable
+    assert problem.fit_shift and not problem.fit_lag
+    moved = fit.theta.copy()
+    moved[-1] += 0.1  # the fitted shift
+    other = stages._draw_moments(problem, moved, 3, 1)
+    assert not np.array_equal(other[0], first[0])
+    np.testing.assert_array_equal(other[0], problem.input_moments(moved, draws[0]))
