@@ -526,8 +526,13 @@ def alias_bias(v: np.ndarray, transitions: np.ndarray, factor: float) -> tuple[f
     if spacing.size >= 2:
         period = float(np.median(spacing))
         k = np.round((starts - starts[0]) / period)
-        if period > 0 and np.unique(k).size >= 3:
-            slope, intercept = np.polyfit(k, starts, 1)
+        # (k never falls: the runs are in order, so its distinct values are its steps.)
+        if period > 0 and np.count_nonzero(np.diff(k)) >= 2:
+            # The least-squares line through (k, starts), in closed form (np.polyfit's
+            # SVD cost a tenth of a millisecond a piece, eight pieces a window).
+            kc = k - k.mean()
+            slope = float(kc @ (starts - starts.mean())) / float(kc @ kc)
+            intercept = float(starts.mean()) - slope * float(k.mean())
             residual = np.abs(starts - (slope * k + intercept))
             locked = bool(
                 abs(slope - round(slope)) <= LOCKED_TOLERANCE and np.median(residual) <= 1.5
