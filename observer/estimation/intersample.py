@@ -838,16 +838,46 @@ def _mirrored_spectrum(seg: np.ndarray, shift: float) -> tuple[np.ndarray, int]:
 
     A long segment (:data:`HALF_SAMPLE_MIRROR`) is mirrored about the half sample past each
     end: 2m samples, a fast FFT for a window of round length (2000 samples: 4000), where
-    mirrored about its end samples 3998 = 2 * 1999 took ten times as long.
+    mirrored about its end samples 3998 = 2 * 1999 took ten times as long. Where 2m has a
+    large prime factor (a window split into two segments: 2 * 4027 = 8054) the extension
+    is made up to the next length of small factors (:func:`fast_length`; 8064) by holding
+    each end's sample a few samples longer where it meets its mirror image: the FFT of
+    8054 samples took 0.9 ms and its inverse of three rows 1.4 ms, of 8064 0.07 and 0.13.
     """
-    if seg.shape[0] >= HALF_SAMPLE_MIRROR:
-        ext = np.concatenate([seg, seg[::-1]])
+    m = seg.shape[0]
+    if m >= HALF_SAMPLE_MIRROR:
+        pad = fast_length(2 * m) - 2 * m
+        if pad:
+            a = pad // 2
+            ext = np.concatenate([seg, np.full(a, seg[-1]), seg[::-1], np.full(pad - a, seg[0])])
+        else:
+            ext = np.concatenate([seg, seg[::-1]])
     else:
         ext = np.concatenate([seg, seg[-2:0:-1]])
     spectrum = np.fft.rfft(ext)
     if shift != 0.0:
         spectrum = spectrum * np.exp(1j * 2.0 * np.pi * np.fft.rfftfreq(ext.shape[0]) * shift)
     return spectrum, ext.shape[0]
+
+
+#: The prime factors of the FFT lengths :func:`fast_length` picks (numpy's pocketfft has
+#: passes for each; a larger prime factor falls back to Bluestein's algorithm, 10-25x slower).
+FAST_FACTORS = (2, 3, 5, 7, 11)
+
+
+@functools.lru_cache(maxsize=256)
+def fast_length(n: int) -> int:
+    """The smallest length ``>= n`` whose prime factors are all in :data:`FAST_FACTORS`
+    (within 0.2 % of ``n`` above a few thousand)."""
+    length = max(int(n), 1)
+    while True:
+        rest = length
+        for p in FAST_FACTORS:
+            while rest % p == 0:
+                rest //= p
+        if rest == 1:
+            return length
+        length += 1
 
 
 def smooth_moments_through(

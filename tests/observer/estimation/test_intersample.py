@@ -391,3 +391,32 @@ def test_a_voltage_at_two_levels_that_rarely_changes_is_no_pwm():
     )
     assert pwm_level_changes(v) < 0.01
     assert pwm_level_changes(np.full(100, 3.0)) == 0.0
+
+
+def test_a_segment_of_awkward_length_is_extended_to_a_fast_fft_and_keeps_its_moments():
+    """2m = 8054 = 2 * 4027 (prime) made the FFT ten times slower; the extension is made up
+    to fast_length (8064) by holding the ends' samples a little longer. Away from the ends the
+    moments are the slow sine's exact ones, as with a round length, and the round length's
+    own extension is unchanged."""
+    from observer.estimation.intersample import FAST_FACTORS, fast_length, smooth_moments
+
+    assert fast_length(8054) == 8064 and fast_length(20000) == 20000
+    for n in (8054, 17944, 2054, 4099):
+        got = fast_length(n)
+        assert got >= n and not any(_factors_in(k, FAST_FACTORS) for k in range(n, got))
+        assert _factors_in(got, FAST_FACTORS)
+    w = 2 * np.pi * 0.013
+    for m in (4027, 4000):
+        k = np.arange(m, dtype=np.float64)
+        got = smooth_moments(np.sin(w * k), Segments.whole(m), 0.25)
+        lo, hi = k[:-1] + 0.25, k[:-1] + 1.25
+        exact = (np.cos(w * lo) - np.cos(w * hi)) / w
+        interior = slice(100, m - 100)
+        np.testing.assert_allclose(got[interior, 0], exact[interior], atol=2e-4)
+
+
+def _factors_in(n: int, primes: tuple[int, ...]) -> bool:
+    for p in primes:
+        while n % p == 0:
+            n //= p
+    return n == 1
