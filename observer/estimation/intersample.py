@@ -676,23 +676,23 @@ def restrict(segments: Segments, valid: np.ndarray, min_length: int = MIN_SEGMEN
     """``segments`` cut where ``valid`` is False (those samples leave the segments)."""
     if bool(np.all(valid)):
         return segments
-    starts: list[int] = []
-    ends: list[int] = []
+    ok = np.asarray(valid, dtype=bool)
+    starts: list[np.ndarray] = []
+    ends: list[np.ndarray] = []
     for s, e in zip(segments.starts, segments.ends, strict=True):
-        k = int(s)
-        while k <= e:
-            while k <= e and not valid[k]:
-                k += 1
-            first = k
-            while k <= e and valid[k]:
-                k += 1
-            if k - first >= min_length:
-                starts.append(first)
-                ends.append(k - 1)
+        # The runs of valid samples in the segment (first, last), at least min_length long.
+        edges = np.diff(np.concatenate(([0], ok[s : e + 1].astype(np.int8), [0])))
+        first = np.flatnonzero(edges == 1)
+        last = np.flatnonzero(edges == -1) - 1
+        keep = last - first + 1 >= min_length
+        starts.append(first[keep] + s)
+        ends.append(last[keep] + s)
     n = segments.n_samples
     if not starts:
         return Segments(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), n)
-    return Segments(np.array(starts, dtype=np.int64), np.array(ends, dtype=np.int64), n)
+    return Segments(
+        np.concatenate(starts).astype(np.int64), np.concatenate(ends).astype(np.int64), n
+    )
 
 
 def hold_moments(v: np.ndarray) -> np.ndarray:

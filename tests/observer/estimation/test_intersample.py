@@ -420,3 +420,33 @@ def _factors_in(n: int, primes: tuple[int, ...]) -> bool:
         while n % p == 0:
             n //= p
     return n == 1
+
+
+def test_restrict_keeps_the_runs_of_valid_samples_of_each_segment_at_least_min_length_long():
+    """restrict (vectorised) against the sample-by-sample walk it replaced, on random masks."""
+    from observer.estimation.intersample import restrict
+
+    rng = np.random.default_rng(7)
+    for _ in range(2000):
+        n = int(rng.integers(2, 120))
+        valid = rng.random(n) > rng.random() * 0.5
+        cuts = np.sort(rng.choice(np.arange(1, n), size=min(int(rng.integers(0, 4)), n - 1),
+                                  replace=False))  # fmt: skip
+        starts, ends = np.concatenate([[0], cuts]), np.concatenate([cuts - 1, [n - 1]])
+        segments = Segments(starts.astype(np.int64), ends.astype(np.int64), n)
+        min_length = int(rng.integers(1, 6))
+        got = restrict(segments, valid, min_length)
+        want: list[tuple[int, int]] = []
+        if valid.all():
+            want = list(zip(starts.tolist(), ends.tolist(), strict=True))
+        for s, e in [] if valid.all() else zip(starts.tolist(), ends.tolist(), strict=True):
+            k = s
+            while k <= e:
+                while k <= e and not valid[k]:
+                    k += 1
+                first = k
+                while k <= e and valid[k]:
+                    k += 1
+                if k - first >= min_length:
+                    want.append((first, k - 1))
+        assert list(zip(got.starts.tolist(), got.ends.tolist(), strict=True)) == want
