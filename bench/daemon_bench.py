@@ -42,6 +42,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from observer.service.threads import one_blas_thread  # noqa: E402
+
+one_blas_thread()  # as the dcobserver command does, before numpy loads its BLAS
+
 from observer.config import Config, LogConfig, ObserverConfig, ZenohConfig  # noqa: E402
 from observer.estimation.motor import P12  # noqa: E402
 from observer.recording import write_recording  # noqa: E402

@@ -25,6 +25,9 @@ from collections.abc import Sequence
 from typing import Any, NoReturn
 
 from observer import __version__
+from observer.service.threads import one_blas_thread
+
+one_blas_thread()  # before numpy loads its BLAS (observer/service/threads.py says why)
 
 #: name -> (module, one-line help). Keep in the order users meet them.
 COMMANDS: dict[str, tuple[str, str]] = {

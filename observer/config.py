@@ -395,6 +395,16 @@ class ObserverConfig:
     stall_s: float = dataclasses.field(default=1.0, metadata={"check": _positive})
     health_s: float = dataclasses.field(default=1.0, metadata={"check": _positive})
     max_lag_windows: int = dataclasses.field(default=20, metadata={"min": 1})
+    # The armature's estimate in a second process while this one estimates the field
+    # (same numbers, about half the latency on two free cores). auto: on where the
+    # daemon may use two or more CPUs; off suits several daemons sharing the cores.
+    parallel_circuits: str = dataclasses.field(
+        default="auto",
+        metadata={
+            "choices": ("auto", "on", "off"),
+            "help": "estimate the armature in a second process (auto: with 2+ CPUs)",
+        },
+    )
     chain_windows: int = dataclasses.field(
         default=10,
         metadata={

@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
+
+# parallel_circuits = "auto" starts a second process per observer on a machine with two
+# CPUs: the suite's hundreds of short observers would each start one. Tests of the worker
+# ask for it ("on", or parallel=True); the numbers are the same either way.
+os.environ.setdefault("DCOBSERVER_PARALLEL_CIRCUITS", "off")
 
 from observer.estimation.motor import P12, TRACTION_60V
 from observer.simulation.simulate import simulate

@@ -198,6 +198,7 @@ def main(args: argparse.Namespace) -> int:
     from observer.commands.run import format_estimate
     from observer.commands.trend import Trend, render_html, render_png
     from observer.config import Config, load_config
+    from observer.service.circuit_worker import parallel_wanted
     from observer.service.daemon import run_offline
     from observer.service.mcaplog import to_json
     from observer.service.window_observer import WindowResult
@@ -235,7 +236,10 @@ def main(args: argparse.Namespace) -> int:
             bar.write(format_estimate(estimate))
 
     try:
-        observer = run_offline(config, source, on_result=on_result, progress=bar.update)
+        observer = run_offline(
+            config, source, on_result=on_result, progress=bar.update,
+            parallel=parallel_wanted(config.observer.parallel_circuits),
+        )  # fmt: skip
     finally:
         bar.close()
     summary = observer.health()

@@ -6,7 +6,9 @@ estimated window by window in
 :class:`observer.service.window_observer.SlidingWindowObserver`, and leaves
 through :mod:`observer.service.zenohpub` and :mod:`observer.service.mcaplog`;
 :mod:`observer.service.zenohconf` builds every Zenoh session (keys, TLS,
-passwords, access control) and :mod:`observer.service.sdnotify` talks to systemd.
+passwords, access control) and :mod:`observer.service.sdnotify` talks to systemd;
+:mod:`observer.service.circuit_worker` estimates the armature in a second process,
+:mod:`observer.service.threads` keeps BLAS to one thread.
 
 Import rule: this package may import ``observer.service``,
 ``observer.estimation``, ``observer.recording``, ``observer.config`` and

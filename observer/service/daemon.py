@@ -33,6 +33,7 @@ from typing import Any
 from drivers import Source, SourceClosed, source_class
 from observer.config import Config
 from observer.service import sdnotify
+from observer.service.circuit_worker import parallel_wanted
 from observer.service.mcaplog import (
     CONFIG_METADATA,
     LOG_METADATA,
@@ -133,7 +134,10 @@ class Daemon:
         #: Names every estimate and health message carries.
         self.ids = names(self.drive_id, self.motor_id)
         self.ring = RingBuffer(max(1024, int(config.observer.buffer_s * sample_rate_hint_hz)))
-        self.observer = SlidingWindowObserver(self.ring, config.observer, chain=config.chain)
+        self.observer = SlidingWindowObserver(
+            self.ring, config.observer, chain=config.chain,
+            parallel=parallel_wanted(config.observer.parallel_circuits),
+        )  # fmt: skip
         self.zenoh = ZenohPublisher(config.zenoh, self.drive_id, self.motor_id)
         self.mcap = (
             McapLog(
@@ -167,6 +171,7 @@ class Daemon:
     # ------------------------------------------------------------------ lifecycle
 
     def start(self) -> None:
+        self.observer.start_worker()  # the armature's process, if wanted: it loads meanwhile
         if self.mcap is not None:
             self.mcap.start()
         self.zenoh.start()
@@ -195,6 +200,7 @@ class Daemon:
         except Exception as exc:
             log.warning("closing the source: %s", exc)
         self._obs.join(timeout)
+        self.observer.close()
         self.zenoh.close(timeout)
         if self.mcap is not None:
             self.mcap.close()
@@ -371,6 +377,11 @@ class Daemon:
         return health
 
 
+#: How long an offline replay waits for its circuit worker to load the kernels before it
+#: starts (windows estimate both circuits here until it is ready).
+WORKER_WAIT_S = 10.0
+
+
 def run_offline(
     config: Config,
     source: Source,
@@ -378,21 +389,27 @@ def run_offline(
     on_result: Callable[[WindowResult], None] | None = None,
     progress: Callable[[int], None] | None = None,
     sample_rate_hint_hz: float = 20_000.0,
+    parallel: bool = False,
 ) -> SlidingWindowObserver:
     """Run the observer over a whole source in this thread (``dcobserver replay``).
 
     Same windows, seeds and warm starts as the live daemon, so the same
     estimates (when the live daemon kept up). ``progress`` gets the samples
-    of each block read.
+    of each block read. ``parallel``: the armature's estimates in a second
+    process (:mod:`.circuit_worker`; the same numbers), stopped at the end.
     """
     ring = RingBuffer(max(1024, int(config.observer.buffer_s * sample_rate_hint_hz)))
-    observer = SlidingWindowObserver(ring, config.observer, chain=config.chain)
-    with source:
-        for block in source:
-            ring.write(block)
-            for result in observer.process_ready(live=False):
-                if on_result is not None:
-                    on_result(result)
-            if progress is not None:
-                progress(len(block))
+    observer = SlidingWindowObserver(ring, config.observer, chain=config.chain, parallel=parallel)
+    try:
+        observer.start_worker(wait_s=WORKER_WAIT_S)
+        with source:
+            for block in source:
+                ring.write(block)
+                for result in observer.process_ready(live=False):
+                    if on_result is not None:
+                        on_result(result)
+                if progress is not None:
+                    progress(len(block))
+    finally:
+        observer.close()
     return observer

@@ -76,6 +76,7 @@ from observer.estimation.filter_id import (
 from observer.estimation.frontend import applied_mismatch, winding_front_ends
 from observer.estimation.motor import MotorParameters
 from observer.estimation.result import kphi
+from observer.service.circuit_worker import CircuitWorker, WorkerFailed
 from observer.service.ringbuffer import RingBuffer, Window
 from observer.service.speed import SpeedEstimate, TachometerCheck, emf_speed
 from observer.service.tracker import (
@@ -229,6 +230,28 @@ def _finite_or_none(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
+#: What a circuit's estimate may raise that fails its window, not the observer.
+_ESTIMATION_ERRORS = (EstimationError, ArithmeticError, ValueError, np.linalg.LinAlgError)
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    """One circuit's estimator arguments for a window (what the worker is sent)."""
+
+    circuit: str
+    signals: dict[str, np.ndarray]
+    dt: float
+    kwargs: dict[str, Any]
+    warm: bool
+
+
+def _run_estimator(prep: _Prepared) -> CircuitEstimate:
+    s = prep.signals
+    if prep.circuit == "field":
+        return estimate_field(s["vf"], s["if"], prep.dt, **prep.kwargs)
+    return estimate_armature(s["va"], s["ia"], s["if"], s["omega"], prep.dt, **prep.kwargs)
+
+
 class SlidingWindowObserver:
     """Estimates field and armature over sliding windows of a :class:`RingBuffer`.
 
@@ -247,6 +270,7 @@ class SlidingWindowObserver:
         *,
         chain: ChainConfig | None = None,
         clock: Callable[[], int] = time.monotonic_ns,
+        parallel: bool = False,
     ) -> None:
         self.ring = ring
         self.config = config
@@ -269,6 +293,43 @@ class SlidingWindowObserver:
         self.warnings: set[str] = set()
         self.last_estimate: dict[str, Any] | None = None
         self._resume_index = 0
+        # The armature's estimate in a second process (:mod:`.circuit_worker`), started
+        # at the first window with both circuits; None: both estimated here.
+        self._parallel = parallel and len(self.circuits) == 2
+        self._worker: CircuitWorker | None = None
+        self.worker_windows = 0  # windows whose armature the worker estimated
+        self.worker_failures = 0
+
+    def start_worker(self, wait_s: float = 0.0) -> bool:
+        """Start the circuit worker (if ``parallel`` and not yet started), waiting up to
+        ``wait_s`` for it to load its kernels; whether it is ready. Windows before then
+        estimate both circuits here."""
+        if not self._parallel:
+            return False
+        if self._worker is None:
+            self._worker = CircuitWorker()
+        return self._worker.wait_ready(wait_s) if wait_s > 0 else self._worker.ready()
+
+    def close(self) -> None:
+        """Stop the circuit worker, if one was started (the observer can go on without it)."""
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
+        self._parallel = False
+
+    @property
+    def parallel_state(self) -> str:
+        """``off``, ``starting`` (the worker loads its kernels), ``on`` or ``failed``."""
+        if self._worker is None:
+            return "failed" if self.worker_failures else "off"
+        if self._worker.closed:
+            return "failed"
+        return "on" if self._worker.ready() else "starting"
+
+    def _worker_failed(self) -> None:
+        self.worker_failures += 1
+        self._worker = None
+        self._parallel = False
 
     # ------------------------------------------------------------------ schedule
 
@@ -365,12 +426,26 @@ class SlidingWindowObserver:
         signals = dict(window.signals)
         flags: list[str] = []
         fits: dict[str, CircuitEstimate | None] = {}
+        # Each circuit's estimate from the state before this window: prepared first, run
+        # (the armature's in the worker, if one is ready, while the field's runs here),
+        # then each circuit's own state updated in order, as one after the other would.
+        prepared: dict[str, _Prepared | Exception] = {}
         for circuit in self.circuits:
             if any(np.isnan(signals[c][0]) for c in CIRCUIT_CHANNELS[circuit]):
                 continue  # the source lacks a channel this circuit needs
             try:
-                fits[circuit] = self._estimate_circuit(circuit, index, signals, period_s)
-            except (EstimationError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+                prepared[circuit] = self._prepare_circuit(circuit, index, signals, period_s)
+            except _ESTIMATION_ERRORS as exc:
+                prepared[circuit] = exc
+        remote = self._submit_remote(prepared)
+        for circuit, prep in prepared.items():
+            try:
+                if isinstance(prep, Exception):
+                    raise prep
+                fit = self._remote_result(prep) if circuit == remote else _run_estimator(prep)
+                self._finish_circuit(prep, fit)
+                fits[circuit] = fit
+            except _ESTIMATION_ERRORS as exc:
                 self.counts[f"{circuit}_failed"] += 1
                 flags.append(f"{circuit}: {exc}")
                 fits[circuit] = None
@@ -423,9 +498,10 @@ class SlidingWindowObserver:
         log.debug("window %d skipped: %s", index, reason)
         return WindowResult(index, t0, t1, None, skip_reason=reason)
 
-    def _estimate_circuit(
+    def _prepare_circuit(
         self, circuit: str, index: int, window: dict[str, np.ndarray], period_s: float
-    ) -> CircuitEstimate:
+    ) -> _Prepared:
+        """The estimator's arguments for ``circuit``, from its state before this window."""
         cfg = self.config
         k = cfg.decimate
         dt = period_s * k
@@ -477,16 +553,49 @@ class SlidingWindowObserver:
             # Settled: polish from the tracked state; the swarm only if that fit degrades.
             kwargs["settled_rms"] = cfg.degrade_ratio * statistics.median(search.rms_history)
         kwargs.update(self._chain_kwargs(circuit, k))
-        est: CircuitEstimate
-        if circuit == "field":
-            est = estimate_field(s["vf"], s["if"], dt, **kwargs)
-        else:
-            est = estimate_armature(s["va"], s["ia"], s["if"], s["omega"], dt, **kwargs)
+        return _Prepared(circuit, s, dt, kwargs, warm)
+
+    def _finish_circuit(self, prep: _Prepared, est: CircuitEstimate) -> None:
+        """``prep.circuit``'s own state after its estimate: chain, warm start, search range."""
+        circuit, s, dt = prep.circuit, prep.signals, prep.dt
+        search = self._search[circuit]
         self._learn_chain(circuit, est, s["vf" if circuit == "field" else "va"], dt)
-        search.warm = warm
+        search.warm = prep.warm
         if math.isfinite(est.inductance_h) and est.inductance_h > 0:
             search.last_l = est.inductance_h
-        self._update_search(circuit, search, est, warm)
+        self._update_search(circuit, search, est, prep.warm)
+
+    def _submit_remote(self, prepared: dict[str, _Prepared | Exception]) -> str | None:
+        """Send the armature's estimate to the worker when both circuits run and it is ready
+        (starting it at the first such window); the circuit sent, or None."""
+        arm = prepared.get("armature")
+        if not self._parallel or not isinstance(arm, _Prepared):
+            return None
+        if not isinstance(prepared.get("field"), _Prepared):
+            return None
+        if self._worker is None:
+            self._worker = CircuitWorker()
+            return None
+        if not self._worker.ready():
+            if self._worker.closed:
+                self._worker_failed()
+            return None
+        try:
+            self._worker.submit(arm.circuit, arm.signals, arm.dt, arm.kwargs)
+        except WorkerFailed:
+            self._worker_failed()
+            return None
+        self.worker_windows += 1
+        return arm.circuit
+
+    def _remote_result(self, prep: _Prepared) -> CircuitEstimate:
+        """The worker's estimate of ``prep``; estimated here if the worker failed."""
+        assert self._worker is not None
+        try:
+            est: CircuitEstimate = self._worker.result()
+        except WorkerFailed:
+            self._worker_failed()
+            return _run_estimator(prep)
         return est
 
     def _chain_kwargs(self, circuit: str, decimate: int) -> dict[str, Any]:
@@ -836,6 +945,12 @@ class SlidingWindowObserver:
             "range_factor": {c: t.factor for c, t in self._search.items()},
             "chain": {c: st.to_dict() for c, st in self._chain_state.items()},
             "tracker": dict(self.tracker.counts),
+            # The armature's estimates in a second process: off, starting, on, failed.
+            "parallel": {
+                "state": self.parallel_state,
+                "windows": self.worker_windows,
+                "failures": self.worker_failures,
+            },
             "tachometer": {
                 "state": "fault" if self.tachometer.faulty else "ok",
                 **self.tachometer.counts,
