@@ -49,6 +49,7 @@ one_blas_thread()  # as the dcobserver command does, before numpy loads its BLAS
 from observer.config import Config, LogConfig, ObserverConfig, ZenohConfig  # noqa: E402
 from observer.estimation.motor import P12  # noqa: E402
 from observer.recording import write_recording  # noqa: E402
+from observer.service.circuit_worker import parallel_wanted  # noqa: E402
 from observer.service.daemon import Daemon, run_offline  # noqa: E402
 from observer.service.window_observer import warm_up_kernels  # noqa: E402
 from observer.simulation.converter import PRESETS  # noqa: E402
@@ -143,7 +144,11 @@ def main() -> int:
 
         offline = ReplaySource(ReplayOptions(path=str(path), speed=0.0, block_s=0.1))
         t0 = time.monotonic()
-        observer = run_offline(Config(observer=obs), offline, sample_rate_hint_hz=args.rate)
+        # As `dcobserver replay` runs it: the armature in a second process where wanted.
+        observer = run_offline(
+            Config(observer=obs), offline, sample_rate_hint_hz=args.rate,
+            parallel=parallel_wanted(obs.parallel_circuits),
+        )  # fmt: skip
         wall = time.monotonic() - t0
         n = observer.counts.get("estimated", 0)
         print(
