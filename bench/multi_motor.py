@@ -17,7 +17,9 @@ Per motor: windows estimated, late windows (skipped because the observer fell
 behind) and ring overruns, and the latency from a window's last sample to its
 estimate on Zenoh (p50, p99, max). ``--duration`` is the measured time per
 layout after a warm-up; the issue's acceptance run is 10 minutes, shorter
-runs say so in the output.
+runs say so in the output. ``--parallel-circuits`` is each daemon's ``[observer]
+parallel_circuits`` (default ``off``: with more daemons than cores a second process per
+motor only adds processes; ``auto`` or ``on`` measures it anyway).
 
 Run ``python -m bench.multi_motor --help``.
 """
@@ -66,7 +68,12 @@ def make_recordings(folder: Path, motors: int, rate_hz: float, length_s: float) 
 
 
 def run_motors(
-    paths: Sequence[Path], rate_hz: float, decimate: int, warmup_s: float, duration_s: float
+    paths: Sequence[Path],
+    rate_hz: float,
+    decimate: int,
+    warmup_s: float,
+    duration_s: float,
+    parallel_circuits: str = "off",
 ) -> list[dict[str, Any]]:
     """Run one daemon per path in this process for ``warmup_s + duration_s``; their figures."""
     from observer.config import Config, LogConfig, ObserverConfig, ZenohConfig
@@ -79,7 +86,7 @@ def run_motors(
     for i, path in enumerate(paths):
         obs = ObserverConfig(
             drive_id="bench", motor_id=f"m{os.getpid()}-{i}", window_s=1.0, hop_s=0.1,
-            decimate=decimate, seed=i,
+            decimate=decimate, seed=i, parallel_circuits=parallel_circuits,
         )  # fmt: skip
         config = Config(
             observer=obs,
@@ -119,9 +126,12 @@ def run_motors(
 
 def _child(argv: Sequence[str]) -> int:
     """``--child``: run the given recordings' daemons here and print their figures as JSON."""
+    from observer.service.threads import one_blas_thread
+
+    one_blas_thread()  # as the dcobserver command does, before numpy loads its BLAS
     rate, decimate, warmup, duration = float(argv[0]), int(argv[1]), float(argv[2]), float(argv[3])
-    paths = [Path(p) for p in argv[4:]]
-    print(json.dumps(run_motors(paths, rate, decimate, warmup, duration)), flush=True)
+    parallel, paths = argv[4], [Path(p) for p in argv[5:]]
+    print(json.dumps(run_motors(paths, rate, decimate, warmup, duration, parallel)), flush=True)
     # The figures are out; skip the interpreter's teardown, which can abort while the
     # stopped daemons' native threads (Zenoh's) are still unwinding.
     sys.stderr.flush()
@@ -132,7 +142,8 @@ def run_layout(
     layout: str, paths: Sequence[Path], args: argparse.Namespace
 ) -> list[dict[str, Any]]:
     """Every motor's figures under ``layout`` ("processes" or "threads")."""
-    common = [str(args.rate), str(args.decimate), str(args.warmup), str(args.duration)]
+    common = [str(args.rate), str(args.decimate), str(args.warmup), str(args.duration),
+              args.parallel_circuits]  # fmt: skip
     groups = [[p] for p in paths] if layout == "processes" else [list(paths)]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     procs = [
@@ -167,6 +178,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--warmup", type=float, default=5.0, help="seconds before measuring")
     parser.add_argument("--recording-s", type=float, default=20.0, help="looped recording (s)")
     parser.add_argument("--layouts", type=str, default="processes,threads")
+    parser.add_argument(
+        "--parallel-circuits", choices=("auto", "on", "off"), default="off",
+        help="each daemon's [observer] parallel_circuits",
+    )  # fmt: skip
     parser.add_argument("--output", type=Path, default=Path("docs/multi_motor.md"))
     args = parser.parse_args(argv)
     try:
@@ -196,7 +211,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "",
         f"Made by `{command}` on {machine}. Each motor: a daemon replaying its own simulated "
         f"P-12 at real time, {args.rate:g} Hz, window 1 s, hop 0.1 s, decimate {args.decimate}, "
-        f"MCAP log off; {args.duration:g} s measured after {args.warmup:g} s of warm-up"
+        f"MCAP log off, parallel_circuits {args.parallel_circuits}; {args.duration:g} s "
+        f"measured after {args.warmup:g} s of warm-up"
         + (" (the issue's acceptance run is 10 minutes)." if args.duration < 600 else "."),
         "",
         "| layout | motors | estimated / motor | late windows (all motors) | ring overruns | "
