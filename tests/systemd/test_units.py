@@ -116,7 +116,8 @@ def test_the_sandbox_denies_what_the_unit_denies(children):
 @needs_seccomp
 def test_the_daemon_runs_its_serial_adapter_and_zenoh_under_the_units_filter(tmp_path, children):
     """The unit's SystemCallFilter= and RestrictAddressFamilies= emulated with libseccomp:
-    a serial fake drive on a pty in, Zenoh out to a subscriber listening on all addresses."""
+    a serial fake drive on a pty in, Zenoh out to a subscriber listening on all addresses,
+    and the armature's second process (parallel_circuits) started and answering."""
     link = tmp_path / "serial"
     drive = FakeDrive("serial", "--link", str(link))
     try:
@@ -126,13 +127,16 @@ def test_the_daemon_runs_its_serial_adapter_and_zenoh_under_the_units_filter(tmp
         config.write_text(
             serial_sim.replace('"/tmp/dcobserver-fake-serial"', json.dumps(str(link)))
             + f'\n[zenoh]\nlisten = ["tcp/0.0.0.0:{port}"]\n'
+            + '\n[observer]\nparallel_circuits = "on"\n'
         )
         assert str(link) in config.read_text()
         daemon = children(
             ["run", "--config", str(config)],
             prefix=(sys.executable, str(SANDBOX), str(UNITS / "dcobserver.service"), "--"),
         )  # fmt: skip
-        daemon.wait_line("zenoh: publishing on", timeout=120)
+        zenoh, worker = "zenoh: publishing on", "field and armature estimated in two processes"
+        first = daemon.wait_line(f"{zenoh}|{worker}", timeout=300)
+        daemon.wait_line(worker if zenoh in first else zenoh, timeout=300)
         sub = children(
             ["subscribe", "--connect", f"tcp/127.0.0.1:{port}", "--json", "--count", "3",
              "--timeout", "60"],
@@ -145,5 +149,6 @@ def test_the_daemon_runs_its_serial_adapter_and_zenoh_under_the_units_filter(tmp
         # may take a few windows).
         assert all(e["field"]["raw"]["R"] is not None for e in estimates), estimates[-1]
         assert daemon.proc.poll() is None, "".join(daemon.stderr[-10:])
+        assert not [x for x in daemon.stderr if "circuit worker" in x], daemon.stderr[-10:]
     finally:
         drive.kill()
