@@ -138,6 +138,8 @@ def main() -> int:
             f"max {lat[-1]:.1f} ms (estimation alone p50 {statistics.median(elapsed):.1f} ms "
             f"p99 {statistics.quantiles(elapsed, n=100)[98]:.1f} ms), "
             f"zenoh published {health['zenoh']['published']}, "
+            f"armature in a second process: {health['observer']['parallel']['state']} "
+            f"({health['observer']['parallel']['windows']} windows), "
             f"{'looped over ' + format(args.loop, 'g') + ' s, ' if args.loop > 0 else ''}"
             f"log {health['log'].get('bytes', 0) / 1e6:.1f} MB"
         )
