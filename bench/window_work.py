@@ -42,6 +42,7 @@ from observer.recording import write_recording
 from observer.service import window_observer
 from observer.service.daemon import run_offline
 from observer.service.window_observer import WindowResult, warm_up_kernels
+from observer.simulation.converter import PRESETS
 from observer.simulation.simulate import simulate
 from replay.source import ReplayOptions, ReplaySource
 
@@ -225,6 +226,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--rate", type=float, default=10_000.0, help="sample rate (Hz)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the recording")
     parser.add_argument(
+        "--preset", default="ideal", choices=sorted(PRESETS),
+        help="the simulated drive: ideal (held voltages) or realistic (converter-fed)",
+    )  # fmt: skip
+    parser.add_argument(
         "--cold-windows", type=int, default=12, help="windows counted as the start (cold, chain)"
     )
     parser.add_argument(
@@ -252,7 +257,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     config = Config(observer=ObserverConfig(decimate=args.decimate))
     with tempfile.TemporaryDirectory(prefix="dcobserver-work-") as tmp:
         path = Path(tmp) / "p12.mcap"
-        rec = simulate(P12, duration_s=args.duration, sample_rate_hz=args.rate, seed=args.seed)
+        rec = simulate(
+            P12, duration_s=args.duration, sample_rate_hz=args.rate, seed=args.seed,
+            drive=PRESETS[args.preset], drive_name=args.preset,
+        )  # fmt: skip
         write_recording(rec, path)
         data_s = float(rec.t[-1] - rec.t[0])
         wall, cpu, n_est = replay(path, config, None)  # plain, as `dcobserver replay`
@@ -268,7 +276,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "# Work per window: what the observer's estimate of each window pays for",
         "",
         f"Made by `python -m bench.window_work{' ' + ' '.join(argv) if argv else ''}` on "
-        f"{machine}. A simulated P-12, {args.duration:g} s at {args.rate:g} Hz, both circuits, "
+        f"{machine}. A simulated P-12 ({args.preset} drive), {args.duration:g} s at "
+        f"{args.rate:g} Hz, both circuits, "
         f"default `[observer]` (window {config.observer.window_s:g} s, hop {hop:g} s, "
         f"decimate {config.observer.decimate}, cold "
         f"{config.observer.cold_particles}×{config.observer.cold_iterations}, warm "
