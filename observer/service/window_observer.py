@@ -293,8 +293,8 @@ class SlidingWindowObserver:
         self.warnings: set[str] = set()
         self.last_estimate: dict[str, Any] | None = None
         self._resume_index = 0
-        # The armature's estimate in a second process (:mod:`.circuit_worker`), started
-        # at the first window with both circuits; None: both estimated here.
+        # The armature's estimate in a second process (:mod:`.circuit_worker`), started by
+        # start_worker (or at the first window with both circuits); None: both here.
         self._parallel = parallel and len(self.circuits) == 2
         self._worker: CircuitWorker | None = None
         self.worker_windows = 0  # windows whose armature the worker estimated
@@ -327,7 +327,11 @@ class SlidingWindowObserver:
         return "on" if self._worker.ready() else "starting"
 
     def _worker_failed(self) -> None:
+        """The worker died, stopped answering, or was left busy (a window ended by an
+        unexpected error with its answer pending): stop it; both circuits run here."""
         self.worker_failures += 1
+        if self._worker is not None:
+            self._worker.close()
         self._worker = None
         self._parallel = False
 

@@ -148,3 +148,40 @@ def test_the_daemon_starts_its_worker_with_itself_and_stops_it_with_itself(
         assert daemon.stop() == []
     assert parallel["state"] == "on" and parallel["failures"] == 0
     assert pid is not None and not _alive(pid)
+
+
+def test_a_window_ended_by_an_unexpected_error_does_not_leave_a_busy_worker_behind(
+    converter_recording, monkeypatch
+):
+    """The field's estimate fails with an error no window expects while the armature's is in
+    the worker: the next window finds the worker busy, stops it, and estimates here."""
+    from observer.service import window_observer
+
+    ring = RingBuffer(20_000)
+    obs = SlidingWindowObserver(ring, CONFIG, parallel=True)
+    assert obs.start_worker(wait_s=READY_S)
+    pid = obs._worker.pid
+    original = window_observer._run_estimator
+    calls = []
+
+    def field_breaks_once(prep):
+        calls.append(prep.circuit)
+        if prep.circuit == "field" and calls.count("field") == 3:
+            raise RuntimeError("a bug")
+        return original(prep)
+
+    monkeypatch.setattr(window_observer, "_run_estimator", field_breaks_once)
+    raised, estimated = 0, 0
+    try:
+        for block in _blocks(converter_recording):
+            ring.write(block)
+            try:
+                estimated += sum(r.estimate is not None for r in obs.process_ready())
+            except RuntimeError:
+                raised += 1
+    finally:
+        obs.close()
+    assert raised == 1 and estimated > 10
+    assert obs.worker_failures == 1 and obs.parallel_state == "failed"
+    assert "armature" in calls  # the windows after it estimated the armature here
+    assert not _alive(pid)
