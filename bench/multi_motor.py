@@ -126,9 +126,7 @@ def run_motors(
 
 def _child(argv: Sequence[str]) -> int:
     """``--child``: run the given recordings' daemons here and print their figures as JSON."""
-    from observer.service.threads import one_blas_thread
-
-    one_blas_thread()  # as the dcobserver command does, before numpy loads its BLAS
+    # (BLAS in one thread, as the dcobserver command runs: bench/__init__ sets it.)
     rate, decimate, warmup, duration = float(argv[0]), int(argv[1]), float(argv[2]), float(argv[3])
     parallel, paths = argv[4], [Path(p) for p in argv[5:]]
     print(json.dumps(run_motors(paths, rate, decimate, warmup, duration, parallel)), flush=True)

@@ -847,11 +847,8 @@ def _mirrored_spectrum(seg: np.ndarray, shift: float) -> tuple[np.ndarray, int]:
     m = seg.shape[0]
     if m >= HALF_SAMPLE_MIRROR:
         pad = fast_length(2 * m) - 2 * m
-        if pad:
-            a = pad // 2
-            ext = np.concatenate([seg, np.full(a, seg[-1]), seg[::-1], np.full(pad - a, seg[0])])
-        else:
-            ext = np.concatenate([seg, seg[::-1]])
+        a = pad // 2
+        ext = np.concatenate([seg, np.full(a, seg[-1]), seg[::-1], np.full(pad - a, seg[0])])
     else:
         ext = np.concatenate([seg, seg[-2:0:-1]])
     spectrum = np.fft.rfft(ext)

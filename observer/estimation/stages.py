@@ -325,8 +325,8 @@ def _noise_draws(n: int, count: int, seed: int) -> np.ndarray:
     return out
 
 
-#: The band-limited moments of the noise draws, by window length, draws, segments and
-#: shift (:func:`_draw_moments`); at most :data:`DRAW_CACHE_SIZE` entries, oldest out first.
+#: The band-limited moments of the noise draws, by window length, draws and shift
+#: (:func:`_draw_moments`); at most :data:`DRAW_CACHE_SIZE` entries, oldest out first.
 _draw_cache: dict[tuple[object, ...], list[np.ndarray]] = {}
 DRAW_CACHE_SIZE = 8
 

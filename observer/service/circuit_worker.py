@@ -69,10 +69,12 @@ def parallel_wanted(setting: str) -> bool:
 
 
 class CircuitWorker:
-    """One ``spawn`` process that runs a circuit's estimator on request.
+    """One worker process that runs a circuit's estimator on request.
 
     :meth:`ready` is false until the worker has loaded the kernels; :meth:`submit`
-    sends one estimate's arguments, :meth:`result` waits for its answer (the
+    sends one estimate's arguments (the observer's prepared circuit, run there by
+    :func:`~observer.service.window_observer.run_estimator`), :meth:`result` waits for
+    its answer (the
     estimate, or the estimator's exception raised here). Any failure of the
     process itself raises :class:`WorkerFailed` and leaves the worker closed.
     """
@@ -129,13 +131,12 @@ class CircuitWorker:
                 self._conn.poll(min(left, 0.5))
         return self.ready()
 
-    def submit(
-        self, circuit: str, signals: dict[str, Any], dt: float, kwargs: dict[str, Any]
-    ) -> None:
+    def submit(self, job: Any) -> None:
+        """Send one circuit's prepared estimate (picklable) to the worker."""
         if self.closed or self._pending:
             raise WorkerFailed("the worker is closed or busy")
         try:
-            self._conn.send(("estimate", circuit, signals, dt, kwargs))
+            self._conn.send(("estimate", job))
         except (OSError, ValueError) as exc:
             self._fail(f"could not be sent a window: {exc}")
             raise WorkerFailed(str(exc)) from exc
@@ -188,8 +189,7 @@ def _serve(conn: Connection) -> None:
     with contextlib.suppress(OSError, AttributeError):
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
-    from observer.estimation import estimate_armature, estimate_field
-    from observer.service.window_observer import warm_up_kernels
+    from observer.service.window_observer import run_estimator, warm_up_kernels
 
     started = time.monotonic()
     warm_up_kernels()
@@ -199,12 +199,8 @@ def _serve(conn: Connection) -> None:
             message = conn.recv()
             if message[0] != "estimate":
                 return
-            _, circuit, s, dt, kwargs = message
             try:
-                if circuit == "field":
-                    est = estimate_field(s["vf"], s["if"], dt, **kwargs)
-                else:
-                    est = estimate_armature(s["va"], s["ia"], s["if"], s["omega"], dt, **kwargs)
+                est = run_estimator(message[1])
             except Exception as exc:  # the estimator's own error: the parent handles it
                 conn.send(("error", exc))
                 continue

@@ -245,7 +245,8 @@ class _Prepared:
     warm: bool
 
 
-def _run_estimator(prep: _Prepared) -> CircuitEstimate:
+def run_estimator(prep: _Prepared) -> CircuitEstimate:
+    """The circuit's estimate of ``prep`` (here, or in :mod:`.circuit_worker`'s process)."""
     s = prep.signals
     if prep.circuit == "field":
         return estimate_field(s["vf"], s["if"], prep.dt, **prep.kwargs)
@@ -446,7 +447,7 @@ class SlidingWindowObserver:
             try:
                 if isinstance(prep, Exception):
                     raise prep
-                fit = self._remote_result(prep) if circuit == remote else _run_estimator(prep)
+                fit = self._remote_result(prep) if circuit == remote else run_estimator(prep)
                 self._finish_circuit(prep, fit)
                 fits[circuit] = fit
             except _ESTIMATION_ERRORS as exc:
@@ -578,14 +579,14 @@ class SlidingWindowObserver:
         if not isinstance(prepared.get("field"), _Prepared):
             return None
         if self._worker is None:
-            self._worker = CircuitWorker()
+            self.start_worker()
             return None
         if not self._worker.ready():
             if self._worker.closed:
                 self._worker_failed()
             return None
         try:
-            self._worker.submit(arm.circuit, arm.signals, arm.dt, arm.kwargs)
+            self._worker.submit(arm)
         except WorkerFailed:
             self._worker_failed()
             return None
@@ -599,7 +600,7 @@ class SlidingWindowObserver:
             est: CircuitEstimate = self._worker.result()
         except WorkerFailed:
             self._worker_failed()
-            return _run_estimator(prep)
+            return run_estimator(prep)
         return est
 
     def _chain_kwargs(self, circuit: str, decimate: int) -> dict[str, Any]:

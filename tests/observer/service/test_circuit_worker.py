@@ -161,7 +161,7 @@ def test_a_window_ended_by_an_unexpected_error_does_not_leave_a_busy_worker_behi
     obs = SlidingWindowObserver(ring, CONFIG, parallel=True)
     assert obs.start_worker(wait_s=READY_S)
     pid = obs._worker.pid
-    original = window_observer._run_estimator
+    original = window_observer.run_estimator
     calls = []
 
     def field_breaks_once(prep):
@@ -170,7 +170,7 @@ def test_a_window_ended_by_an_unexpected_error_does_not_leave_a_busy_worker_behi
             raise RuntimeError("a bug")
         return original(prep)
 
-    monkeypatch.setattr(window_observer, "_run_estimator", field_breaks_once)
+    monkeypatch.setattr(window_observer, "run_estimator", field_breaks_once)
     raised, estimated = 0, 0
     try:
         for block in _blocks(converter_recording):
