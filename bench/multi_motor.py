@@ -1,7 +1,7 @@
 """Several motors on one drive PC: one daemon per motor against one process for all, measured.
 
 Each motor is a :class:`~observer.service.daemon.Daemon` (replay source at real
-time, looping over its own simulated P-12 recording, ring buffer, observer,
+time over its own simulated P-12 recording, ring buffer, observer,
 Zenoh publisher; the MCAP log off, in every layout alike) with its own drive
 id, motor id, seed and Zenoh port. Two layouts:
 
@@ -17,7 +17,11 @@ Per motor: windows estimated, late windows (skipped because the observer fell
 behind) and ring overruns, and the latency from a window's last sample to its
 estimate on Zenoh (p50, p99, max). ``--duration`` is the measured time per
 layout after a warm-up; the issue's acceptance run is 10 minutes, shorter
-runs say so in the output. ``--parallel-circuits`` is each daemon's ``[observer]
+runs say so in the output. Each recording is as long as the run (warm-up
+included), so no window straddles a loop's seam, where speed and currents jump
+from the recording's end back to its start as no motor does (a few percent of a
+looped run's windows, enough to set its p99; ``--recording-s S`` loops one of S
+seconds instead, as before). ``--parallel-circuits`` is each daemon's ``[observer]
 parallel_circuits`` (default ``off``: with more daemons than cores a second process per
 motor only adds processes; ``auto`` or ``on`` measures it anyway).
 
@@ -52,16 +56,24 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def make_recordings(folder: Path, motors: int, rate_hz: float, length_s: float) -> list[Path]:
-    """One simulated P-12 recording per motor (own seed), looped by the replay."""
+def make_recordings(
+    folder: Path, motors: int, rate_hz: float, length_s: float, preset: str = "ideal"
+) -> list[Path]:
+    """One simulated P-12 recording per motor (own seed) of the drive ``preset``."""
     from observer.estimation.motor import P12
     from observer.recording import write_recording
+    from observer.simulation.converter import PRESETS
     from observer.simulation.simulate import simulate
 
     paths = []
     for m in range(motors):
         path = folder / f"motor{m}.mcap"
-        rec = simulate(P12, duration_s=length_s, sample_rate_hz=rate_hz, noise=0.002, seed=100 + m)
+        print(f"simulating motor {m + 1}/{motors}: {length_s:g} s at {rate_hz:g} Hz, {preset}",
+              flush=True)  # fmt: skip
+        rec = simulate(
+            P12, duration_s=length_s, sample_rate_hz=rate_hz, noise=0.002, seed=100 + m,
+            drive=PRESETS[preset], drive_name=preset,
+        )  # fmt: skip
         write_recording(rec, path)
         paths.append(path)
     return paths
@@ -74,6 +86,7 @@ def run_motors(
     warmup_s: float,
     duration_s: float,
     parallel_circuits: str = "off",
+    loop: bool = False,
 ) -> list[dict[str, Any]]:
     """Run one daemon per path in this process for ``warmup_s + duration_s``; their figures."""
     from observer.config import Config, LogConfig, ObserverConfig, ZenohConfig
@@ -93,7 +106,7 @@ def run_motors(
             zenoh=ZenohConfig(listen=[f"tcp/127.0.0.1:{_free_port()}"]),
             log=LogConfig(dir=""),
         )
-        source = ReplaySource(ReplayOptions(path=str(path), speed=1.0, block_s=0.01, loop=True))
+        source = ReplaySource(ReplayOptions(path=str(path), speed=1.0, block_s=0.01, loop=loop))
         daemons.append(Daemon(config, source, sample_rate_hint_hz=rate_hz))
     for d in daemons:
         d.start()
@@ -128,8 +141,9 @@ def _child(argv: Sequence[str]) -> int:
     """``--child``: run the given recordings' daemons here and print their figures as JSON."""
     # (BLAS in one thread, as the dcobserver command runs: bench/__init__ sets it.)
     rate, decimate, warmup, duration = float(argv[0]), int(argv[1]), float(argv[2]), float(argv[3])
-    parallel, paths = argv[4], [Path(p) for p in argv[5:]]
-    print(json.dumps(run_motors(paths, rate, decimate, warmup, duration, parallel)), flush=True)
+    parallel, loop, paths = argv[4], argv[5] == "loop", [Path(p) for p in argv[6:]]
+    print(json.dumps(run_motors(paths, rate, decimate, warmup, duration, parallel, loop)),
+          flush=True)  # fmt: skip
     # The figures are out; skip the interpreter's teardown, which can abort while the
     # stopped daemons' native threads (Zenoh's) are still unwinding.
     sys.stderr.flush()
@@ -141,7 +155,7 @@ def run_layout(
 ) -> list[dict[str, Any]]:
     """Every motor's figures under ``layout`` ("processes" or "threads")."""
     common = [str(args.rate), str(args.decimate), str(args.warmup), str(args.duration),
-              args.parallel_circuits]  # fmt: skip
+              args.parallel_circuits, "loop" if args.recording_s > 0 else "once"]  # fmt: skip
     groups = [[p] for p in paths] if layout == "processes" else [list(paths)]
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     procs = [
@@ -174,7 +188,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--decimate", type=int, default=1, help="[observer] decimate")
     parser.add_argument("--duration", type=float, default=60.0, help="measured seconds per run")
     parser.add_argument("--warmup", type=float, default=5.0, help="seconds before measuring")
-    parser.add_argument("--recording-s", type=float, default=20.0, help="looped recording (s)")
+    parser.add_argument(
+        "--recording-s", type=float, default=0.0,
+        help="loop a recording of this many seconds (0: one as long as the run, no seam)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--preset", default="ideal", help="the simulated drive (ideal: held voltages; realistic)"
+    )
     parser.add_argument("--layouts", type=str, default="processes,threads")
     parser.add_argument(
         "--parallel-circuits", choices=("auto", "on", "off"), default="off",
@@ -191,8 +211,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error("--motors needs at least one count >= 1")
     if not args.layout_list or set(args.layout_list) - {"processes", "threads"}:
         parser.error("--layouts takes 'processes' and/or 'threads'")
-    if args.duration <= 0 or args.warmup < 0 or args.recording_s < 2.0 or args.decimate < 1:
-        parser.error("need --duration > 0, --warmup >= 0, --recording-s >= 2, --decimate >= 1")
+    if args.duration <= 0 or args.warmup < 0 or (0 < args.recording_s < 2.0) or args.decimate < 1:
+        parser.error("need --duration > 0, --warmup >= 0, --recording-s 0 or >= 2, --decimate >= 1")
+    from observer.simulation.converter import PRESETS
+
+    if args.preset not in PRESETS:
+        parser.error(f"--preset must be one of {', '.join(sorted(PRESETS))}, got {args.preset!r}")
     return args
 
 
@@ -208,7 +232,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "# Several motors on one drive PC",
         "",
         f"Made by `{command}` on {machine}. Each motor: a daemon replaying its own simulated "
-        f"P-12 at real time, {args.rate:g} Hz, window 1 s, hop 0.1 s, decimate {args.decimate}, "
+        f"P-12 ({args.preset} drive) at real time"
+        + (f", looped over {args.recording_s:g} s" if args.recording_s > 0 else "")
+        + f", {args.rate:g} Hz, window 1 s, hop 0.1 s, decimate {args.decimate}, "
         f"MCAP log off, parallel_circuits {args.parallel_circuits}; {args.duration:g} s "
         f"measured after {args.warmup:g} s of warm-up"
         + (" (the issue's acceptance run is 10 minutes)." if args.duration < 600 else "."),
@@ -218,7 +244,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         "|---|---|---|---|---|---|---|---|",
     ]
     with tempfile.TemporaryDirectory(prefix="dcobserver-motors-") as tmp:
-        paths = make_recordings(Path(tmp), max(args.motor_counts), args.rate, args.recording_s)
+        # The daemons start after their recordings are read and run warm-up + duration.
+        length = args.recording_s or args.warmup + args.duration + 10.0
+        paths = make_recordings(
+            Path(tmp), max(args.motor_counts), args.rate, length, args.preset
+        )  # fmt: skip
         for n in args.motor_counts:
             for layout in args.layout_list:
                 if layout == "threads" and n == 1 and "processes" in args.layout_list:
