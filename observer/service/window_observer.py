@@ -52,6 +52,7 @@ import statistics
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -93,6 +94,14 @@ log = logging.getLogger(__name__)
 #: Tries at identifying an untold voltage filter from windows with too few jumps.
 FILTER_TRIES = 20
 
+#: An untold voltage filter is identified in a thread beside the windows (0.5-0.6 s of CPU
+#: a winding at 10 kHz; run in the observer's thread it held up the windows behind it,
+#: and a converter-fed daemon's first windows then waited up to a second). Its result is
+#: used from the window this long (s) after the one it was identified from, waiting for it
+#: there if it is not ready: live and replayed windows use it from the same window, so a
+#: replay still gives the live numbers.
+FILTER_DUE_S = 1.5
+
 _NS = 1_000_000_000
 CIRCUIT_PARAMS = {"field": ("R", "L"), "armature": ("R", "L", "K")}
 #: circuit -> {letter: tracked parameter name}
@@ -126,6 +135,8 @@ class _ChainState:
     # windows since the chain was decided (tries are spaced by them).
     voltage_filter: FilterFit | None = None
     filter_windows: int = 0
+    # An identification under way: its result and the window index from which it is used.
+    pending: tuple[Future[FilterFit], int] | None = None
     votes: Counter[str] = field(default_factory=Counter)
     shifts: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     mismatches: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
@@ -243,6 +254,11 @@ class _Prepared:
     dt: float
     kwargs: dict[str, Any]
     warm: bool
+    index: int
+
+
+def _identified(fit: FilterFit | None) -> str | None:
+    return fit.best if fit is not None and fit.alias is not None else None
 
 
 def run_estimator(prep: _Prepared) -> CircuitEstimate:
@@ -300,6 +316,9 @@ class SlidingWindowObserver:
         self._worker: CircuitWorker | None = None
         self.worker_windows = 0  # windows whose armature the worker estimated
         self.worker_failures = 0
+        # The untold voltage filters' identification (FILTER_DUE_S), started when first needed.
+        self._identifier: ThreadPoolExecutor | None = None
+        self._filter_due = max(1, math.ceil(FILTER_DUE_S / config.hop_s - 1e-9))
 
     def start_worker(self, wait_s: float = 0.0) -> bool:
         """Start the circuit worker (if ``parallel`` and not yet started), waiting up to
@@ -312,11 +331,17 @@ class SlidingWindowObserver:
         return self._worker.wait_ready(wait_s) if wait_s > 0 else self._worker.ready()
 
     def close(self) -> None:
-        """Stop the circuit worker, if one was started (the observer can go on without it)."""
+        """Stop the circuit worker, if one was started (the observer can go on without it),
+        and the filter identification's thread (an identification under way is dropped)."""
         if self._worker is not None:
             self._worker.close()
             self._worker = None
         self._parallel = False
+        if self._identifier is not None:
+            self._identifier.shutdown(wait=True, cancel_futures=True)
+            self._identifier = None
+        for state in self._chain_state.values():
+            state.pending = None
 
     @property
     def parallel_state(self) -> str:
@@ -557,14 +582,15 @@ class SlidingWindowObserver:
         ):
             # Settled: polish from the tracked state; the swarm only if that fit degrades.
             kwargs["settled_rms"] = cfg.degrade_ratio * statistics.median(search.rms_history)
+        self._collect_filter(circuit, index)
         kwargs.update(self._chain_kwargs(circuit, k))
-        return _Prepared(circuit, s, dt, kwargs, warm)
+        return _Prepared(circuit, s, dt, kwargs, warm, index)
 
     def _finish_circuit(self, prep: _Prepared, est: CircuitEstimate) -> None:
         """``prep.circuit``'s own state after its estimate: chain, warm start, search range."""
         circuit, s, dt = prep.circuit, prep.signals, prep.dt
         search = self._search[circuit]
-        self._learn_chain(circuit, est, s["vf" if circuit == "field" else "va"], dt)
+        self._learn_chain(circuit, est, s["vf" if circuit == "field" else "va"], dt, prep.index)
         search.warm = prep.warm
         if math.isfinite(est.inductance_h) and est.inductance_h > 0:
             search.last_l = est.inductance_h
@@ -626,20 +652,20 @@ class SlidingWindowObserver:
         return out
 
     def _learn_chain(
-        self, circuit: str, est: CircuitEstimate, voltage: np.ndarray, dt: float
+        self, circuit: str, est: CircuitEstimate, voltage: np.ndarray, dt: float, index: int
     ) -> None:
         state = self._chain_state[circuit]
         if self.chain.intersample != "auto" or self.config.decimate > 1:
             return
         if state.model is not None:
-            self._identify_voltage_filter(circuit, state, voltage, dt)
+            self._identify_voltage_filter(circuit, state, voltage, dt, index)
             return
         if not est.describes_window:
             return
         state.record(est)
         if sum(state.votes.values()) >= self.config.chain_windows:
             state.decide()
-            self._identify_voltage_filter(circuit, state, voltage, dt)
+            self._identify_voltage_filter(circuit, state, voltage, dt, index)
             corrected = applied_mismatch(state.mismatch)
             log.info(
                 "%s measurement chain decided over %d windows: %s voltage, delay %.2f samples%s",
@@ -649,16 +675,17 @@ class SlidingWindowObserver:
             )  # fmt: skip
 
     def _identify_voltage_filter(
-        self, circuit: str, state: _ChainState, voltage: np.ndarray, dt: float
+        self, circuit: str, state: _ChainState, voltage: np.ndarray, dt: float, index: int
     ) -> None:
         """Untold front ends and a filtered voltage: which filter, from the converter's
-        jumps in this window (:mod:`observer.estimation.filter_id`). A window with too few
+        jumps in window ``index`` (:mod:`observer.estimation.filter_id`), identified in a
+        thread and used from a fixed window on (:data:`FILTER_DUE_S`). A window with too few
         jumps (a drive at standstill) is followed by another try every ``chain_windows``
         windows, at most :data:`FILTER_TRIES` times; a voltage the jumps' model does not
         describe is not tried again."""
         if state.model != "smooth" or winding_front_ends(self.chain, circuit) is not None:
             return
-        if circuit not in IDENTIFIED_WINDINGS:
+        if circuit not in IDENTIFIED_WINDINGS or state.pending is not None:
             return
         fit = state.voltage_filter
         if fit is not None and (fit.alias is not None or not fit.too_few_jumps):
@@ -669,7 +696,20 @@ class SlidingWindowObserver:
         tries = (state.filter_windows - 1) // self.config.chain_windows + 1
         if tries > FILTER_TRIES:
             return
-        fit = state.voltage_filter = identify_voltage_filter(voltage, dt)
+        if self._identifier is None:
+            self._identifier = ThreadPoolExecutor(1, thread_name_prefix="dcobserver-filter")
+        job = self._identifier.submit(identify_voltage_filter, np.array(voltage), dt)
+        state.pending = (job, index + self._filter_due)
+
+    def _collect_filter(self, circuit: str, index: int) -> None:
+        """From its window on, the identified voltage filter of ``circuit`` (waiting for it)."""
+        state = self._chain_state[circuit]
+        if state.pending is None or index < state.pending[1]:
+            return
+        job, _ = state.pending
+        state.pending = None
+        fit = state.voltage_filter = job.result()
+        tries = (state.filter_windows - 1) // self.config.chain_windows + 1
         if fit.alias is not None:
             log.info(
                 "%s voltage filter identified from %d jumps: %s (residual %.3g V), aliasing "
@@ -790,6 +830,9 @@ class SlidingWindowObserver:
             "mismatch_measured": _finite_or_none(est.mismatch_size),
             "mismatch_corrected": applied_mismatch(self._chain_state[circuit].mismatch),
             "decided": self._chain_state[circuit].model is not None,
+            # Untold front ends: the voltage filter identified from the converter's jumps
+            # that this window's std and reconstruction used (None: none yet, or none found).
+            "identified_filter": _identified(self._chain_state[circuit].voltage_filter),
         }
         if circuit == "field" and tracked["L"].status == "ok":
             self._check_field_window(tracked["L"].value, tracked["R"].value)

@@ -437,3 +437,57 @@ def test_an_untold_voltage_filter_is_identified_and_narrows_the_std(monkeypatch)
     assert obs_rc.health()["chain"]["field"]["voltage_filter"] is None
     rel_std_rc = np.array([a["rel_std"]["R"] for a in decided_windows(results_rc)])
     assert np.median(rel_std_rc) > 2.0 * np.median(rel_std)
+
+
+def test_the_filter_is_identified_beside_the_windows_and_used_from_a_fixed_window(monkeypatch):
+    """The untold filter's identification (0.5 s of CPU a winding at 10 kHz) runs in a thread:
+    the windows after the one it starts from are estimated while it runs (here it is held
+    until they are), and its result is used from FILTER_DUE_S later however long it took, so
+    a slow identification and a quick one give the same numbers (a replay, the live ones)."""
+    import threading
+
+    from observer.service import window_observer
+    from observer.simulation.converter import PRESETS
+
+    rec = simulate(
+        P12, duration_s=8.0, sample_rate_hz=2000.0, seed=5, drive=PRESETS["realistic"],
+        drive_name="realistic",
+    )  # fmt: skip
+    cfg = dict(hop_s=0.25, chain_windows=6, circuits="field")
+    quick_obs, quick = _run(_blocks(rec), **cfg)
+
+    identify = window_observer.identify_voltage_filter
+    gate = threading.Event()
+    held = []
+
+    def held_identify(v, dt):
+        assert gate.wait(120), "the observer never reached the window before the filter's"
+        return identify(v, dt)
+
+    monkeypatch.setattr(window_observer, "identify_voltage_filter", held_identify)
+    obs = SlidingWindowObserver(RingBuffer(20_000), ObserverConfig(**{**FAST, **cfg}))
+    slow = []
+    for block in _blocks(rec):
+        obs.ring.write(block)
+        for r in obs.process_ready():
+            slow.append(r)
+            pending = obs._chain_state["field"].pending
+            if pending is not None and r.index == pending[1] - 1:
+                held.append(r.index)
+                gate.set()  # every window before the filter's ran without it
+    obs.close()
+    assert held, "no identification was started"
+
+    used = [r.estimate["field"]["chain"]["identified_filter"] for r in slow]
+    start = next(i for i, r in enumerate(slow) if r.estimate["field"]["chain"]["decided"])
+    due = held[0] + 1
+    assert due - start == 6  # 1.5 s at a 0.25 s hop
+    assert all(u is None for u in used[:due])
+    assert all(u is not None and u.startswith(("butter2", "bessel2")) for u in used[due:])
+    assert len(used) > due + 5
+
+    def numbers(results):
+        return [{k: v for k, v in r.estimate["field"].items() if k != "elapsed_ms"}
+                for r in results]  # fmt: skip
+
+    assert numbers(slow) == numbers(quick)
