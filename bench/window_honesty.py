@@ -48,6 +48,13 @@ def _drive(name: str):  # type: ignore[no-untyped-def]
         return drive_spec("thyristor")
     if name == "chopper":
         return drive_spec("chopper")
+    if name == "chopper-averaged-voltages":
+        # The chopper's voltages measured as their means over each period (an integrating
+        # ADC): what the aliased carrier leaves in an instantaneous sample is gone.
+        chain = MeasurementChain.uniform(REALISTIC_CHANNEL)
+        for ch in ("va", "vf"):
+            chain = chain.with_channel(ch, averaging=True)
+        return drive_spec("chopper").replace(chain=chain)
     if name == "no-filter":
         return drive_spec("thyristor").replace(
             chain=MeasurementChain.uniform(ChannelChain(bits=12))
@@ -218,7 +225,8 @@ def main(argv: list[str] | None = None) -> int:
         "--drives", default="realistic,no-filter,chopper,rc1-voltages,bare-voltages",
         help="drives: realistic, no-filter, chopper, rc1-voltages, bare-voltages, and front "
         "ends not tuned on: rc1-currents, bessel4-currents, butter4-fs3-currents, "
-        "bessel2-voltages, fs8-voltages, rc1-fs8-voltages",
+        "bessel2-voltages, fs8-voltages, rc1-fs8-voltages; chopper-averaged-voltages (the "
+        "chopper with its voltages measured as means over each period)",
     )  # fmt: skip
     parser.add_argument("--seeds", type=int, default=3, help="recordings per case")
     parser.add_argument("--duration", type=float, default=30.0, help="recording length (s)")
