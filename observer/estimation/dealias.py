@@ -43,10 +43,10 @@ from numba import njit
 
 from observer.estimation.filter_id import (
     GOLDEN,
-    _mains,
-    _parse,
-    _responses,
+    jump_responses,
+    mains_frequency,
     normal_solve,
+    parse_candidate,
     poles_residues,
 )
 from observer.estimation.frontend import FrontEnd, apply_relative, filter_sections
@@ -138,7 +138,7 @@ def _jump_rss(
         row[0] = xb[a, 0]
         row[1] = xb[a, 1]
         row[2] = 1.0
-        _responses(a - t0, w, p, r, buf)
+        jump_responses(a - t0, w, p, r, buf)
         row[3] = buf[0]
         row[4] = buf[1]
         row[5] = buf[2]
@@ -225,7 +225,7 @@ def fit_jumps(v: np.ndarray, dt: float, sections: np.ndarray, starts: np.ndarray
     filter_key = sections.tobytes()
     p, r = _poles(filter_key, dt)
     # (50 or 60 Hz: a few thousand samples decide it as well as the window.)
-    w = 2.0 * math.pi * _mains(x[:MAINS_SAMPLES], dt) * dt
+    w = 2.0 * math.pi * mains_frequency(x[:MAINS_SAMPLES], dt) * dt
     setup = (filter_key, dt, w)
     buf = np.empty(3)
     at = [int(k) for k in starts]
@@ -372,7 +372,7 @@ def identified_front_end(name: str | None) -> FrontEnd | None:
     """The :class:`FrontEnd` of an identified candidate (``butter2@0.250``), None for none."""
     if not name or name == "none":
         return None
-    kind, order, frac = _parse(name)
+    kind, order, frac = parse_candidate(name)
     return FrontEnd(kind, order, cutoff_per_fs=frac)
 
 

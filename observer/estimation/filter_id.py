@@ -127,7 +127,7 @@ class FilterFit:
         """The best candidate in the grammar of ``[chain]`` (``butter2@fs/4.00``)."""
         if self.best in ("", "none"):
             return self.best
-        kind, order, frac = _parse(self.best)
+        kind, order, frac = parse_candidate(self.best)
         return f"{kind}{order}@fs/{1.0 / frac:.2f}"
 
     def to_dict(self) -> dict[str, object]:
@@ -138,7 +138,7 @@ class FilterFit:
         }  # fmt: skip
 
 
-def _parse(name: str) -> tuple[str, int, float]:
+def parse_candidate(name: str) -> tuple[str, int, float]:
     """``butter2@0.2500`` -> ``("butter", 2, 0.25)``: a candidate's kind, order and cutoff
     as a fraction of the sample rate."""
     family, frac = name.split("@")
@@ -181,7 +181,7 @@ def poles_residues(sections: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndar
 
 
 @njit(cache=True, nogil=True)
-def _responses(tau: float, w: float, p: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
+def jump_responses(tau: float, w: float, p: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
     """The filter's responses at ``tau`` (samples) to a causal cos, sin and step (``p``
     empty: no filter)."""
     if tau <= 0.0:
@@ -219,7 +219,7 @@ def _rss(y: np.ndarray, w: float, t0: np.ndarray, p: np.ndarray, r: np.ndarray) 
         x[i, 1] = math.sin(w * i)
         x[i, 2] = 1.0
         for k in range(t0.shape[0]):
-            _responses(i - t0[k], w, p, r, buf)
+            jump_responses(i - t0[k], w, p, r, buf)
             x[i, 3 + 3 * k] = buf[0]
             x[i, 4 + 3 * k] = buf[1]
             x[i, 5 + 3 * k] = buf[2]
@@ -349,7 +349,7 @@ def _stretches(jump_starts: np.ndarray, n: int) -> list[tuple[int, int, np.ndarr
     return out
 
 
-def _mains(v: np.ndarray, dt: float) -> float:
+def mains_frequency(v: np.ndarray, dt: float) -> float:
     """The mains frequency whose sine recurrence predicts ``v`` best."""
     best, scale = MAINS_HZ[0], math.inf
     for hz in MAINS_HZ:
@@ -377,7 +377,7 @@ def identify_voltage_filter(v: np.ndarray, dt: float) -> FilterFit:
     used = int(sum(js.shape[0] for _, _, js in stretches))
     if used < MIN_JUMPS:
         return FilterFit(None, jumps=used, reason=f"{used} jumps (at least {MIN_JUMPS} needed)")
-    w = 2.0 * math.pi * _mains(v, dt) * dt
+    w = 2.0 * math.pi * mains_frequency(v, dt) * dt
     fs = 1.0 / dt
     lengths = np.array([b - a for a, b, _ in stretches], dtype=float)
 
@@ -409,7 +409,7 @@ def identify_voltage_filter(v: np.ndarray, dt: float) -> FilterFit:
         # transient is over within a sample, families differ in what the data cannot show
         # (an RC at 0.35 fs at 2 kHz fits as well as two RCs at 0.37 fs, whose alias is a
         # quarter less), so every family near the best is refined and the ties compared.
-        at = CUTOFF_FRACTIONS.index(_parse(name)[2])
+        at = CUTOFF_FRACTIONS.index(parse_candidate(name)[2])
         lo = math.log(CUTOFF_FRACTIONS[max(at - 1, 0)])
         hi = math.log(CUTOFF_FRACTIONS[min(at + 1, len(CUTOFF_FRACTIONS) - 1)])
 
@@ -458,6 +458,6 @@ def candidate_alias(name: str, sample_rate_hz: float) -> float:
     """The aliasing factor of candidate ``name`` (:func:`candidates`) at ``sample_rate_hz``."""
     if name == "none":
         return BARE_JUMP_ALIAS
-    kind, order, frac = _parse(name)
+    kind, order, frac = parse_candidate(name)
     sections = filter_sections(kind, order, frac * sample_rate_hz)
     return alias_factor(lambda f: sections_response(sections, f), sample_rate_hz)
