@@ -178,6 +178,8 @@ def run_layout(
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    from observer.simulation.converter import PRESETS
+
     parser = argparse.ArgumentParser(
         prog="python -m bench.multi_motor",
         description=__doc__.split("\n\n")[0],
@@ -193,8 +195,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help="loop a recording of this many seconds (0: one as long as the run, no seam)",
     )  # fmt: skip
     parser.add_argument(
-        "--preset", default="ideal", help="the simulated drive (ideal: held voltages; realistic)"
-    )
+        "--preset", default="ideal", choices=sorted(PRESETS),
+        help="the simulated drive (ideal: held voltages; realistic: converter-fed)",
+    )  # fmt: skip
     parser.add_argument("--layouts", type=str, default="processes,threads")
     parser.add_argument(
         "--parallel-circuits", choices=("auto", "on", "off"), default="off",
@@ -213,10 +216,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error("--layouts takes 'processes' and/or 'threads'")
     if args.duration <= 0 or args.warmup < 0 or (0 < args.recording_s < 2.0) or args.decimate < 1:
         parser.error("need --duration > 0, --warmup >= 0, --recording-s 0 or >= 2, --decimate >= 1")
-    from observer.simulation.converter import PRESETS
-
-    if args.preset not in PRESETS:
-        parser.error(f"--preset must be one of {', '.join(sorted(PRESETS))}, got {args.preset!r}")
     return args
 
 

@@ -141,6 +141,10 @@ class _ChainState:
     shifts: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     mismatches: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
 
+    def filter_tries(self, chain_windows: int) -> int:
+        """Identifications tried so far: one every ``chain_windows`` windows from the first."""
+        return (self.filter_windows - 1) // chain_windows + 1
+
     def record(self, est: CircuitEstimate) -> None:
         model = est.intersample
         self.votes[model] += 1
@@ -693,8 +697,7 @@ class SlidingWindowObserver:
         state.filter_windows += 1
         if (state.filter_windows - 1) % self.config.chain_windows:
             return
-        tries = (state.filter_windows - 1) // self.config.chain_windows + 1
-        if tries > FILTER_TRIES:
+        if state.filter_tries(self.config.chain_windows) > FILTER_TRIES:
             return
         if self._identifier is None:
             self._identifier = ThreadPoolExecutor(1, thread_name_prefix="dcobserver-filter")
@@ -709,7 +712,7 @@ class SlidingWindowObserver:
         job, _ = state.pending
         state.pending = None
         fit = state.voltage_filter = job.result()
-        tries = (state.filter_windows - 1) // self.config.chain_windows + 1
+        tries = state.filter_tries(self.config.chain_windows)
         if fit.alias is not None:
             log.info(
                 "%s voltage filter identified from %d jumps: %s (residual %.3g V), aliasing "

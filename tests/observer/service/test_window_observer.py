@@ -47,6 +47,7 @@ def _run(blocks, **cfg):
     for b in blocks:
         ring.write(b)
         results += obs.process_ready()
+    obs.close()  # (an untold filter's identification still under way is dropped)
     return obs, results
 
 
@@ -454,7 +455,7 @@ def test_the_filter_is_identified_beside_the_windows_and_used_from_a_fixed_windo
         drive_name="realistic",
     )  # fmt: skip
     cfg = dict(hop_s=0.25, chain_windows=6, circuits="field")
-    quick_obs, quick = _run(_blocks(rec), **cfg)
+    _, quick = _run(_blocks(rec), **cfg)
 
     identify = window_observer.identify_voltage_filter
     gate = threading.Event()
@@ -486,8 +487,4 @@ def test_the_filter_is_identified_beside_the_windows_and_used_from_a_fixed_windo
     assert all(u is not None and u.startswith(("butter2", "bessel2")) for u in used[due:])
     assert len(used) > due + 5
 
-    def numbers(results):
-        return [{k: v for k, v in r.estimate["field"].items() if k != "elapsed_ms"}
-                for r in results]  # fmt: skip
-
-    assert numbers(slow) == numbers(quick)
+    assert [r.estimate["field"] for r in slow] == [r.estimate["field"] for r in quick]
