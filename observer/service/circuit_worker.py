@@ -74,9 +74,8 @@ class CircuitWorker:
     :meth:`ready` is false until the worker has loaded the kernels; :meth:`submit`
     sends one estimate's arguments (the observer's prepared circuit, run there by
     :func:`~observer.service.window_observer.run_estimator`), :meth:`result` waits for
-    its answer (the
-    estimate, or the estimator's exception raised here). Any failure of the
-    process itself raises :class:`WorkerFailed` and leaves the worker closed.
+    its answer (the estimate, or the estimator's exception raised here). Any failure of
+    the process itself raises :class:`WorkerFailed` and leaves the worker closed.
     """
 
     def __init__(self) -> None:
