@@ -20,6 +20,7 @@ import numpy as np
 from observer.estimation import dealias
 from observer.estimation.frontend import FrontEnd
 from observer.estimation.intersample import choose_model
+from observer.estimation.lines import aliased_lines, notch, settle_samples
 from observer.estimation.mechanics import smooth_speed
 from observer.estimation.problem import WindingProblem, coverage_note, make_problem, pwm_note
 from observer.estimation.ranges import (
@@ -116,6 +117,7 @@ def estimate_armature(
     fit_speed: bool = True,
     voltage_alias: float | None = None,
     identified_filter: str | None = None,
+    notch_aliased: bool = True,
 ) -> CircuitEstimate:
     """Estimate ``(Ra, La, K)`` of the armature from ``va, ia`` and measured ``if, omega``.
 
@@ -147,9 +149,23 @@ def estimate_armature(
         (see :func:`observer.estimation.estimate_field`).
     identified_filter : str, optional
         The identified filter itself (see :func:`observer.estimation.estimate_field`).
+    notch_aliased : bool
+        Where the voltage is read as ``smooth`` and shows no jumps (a chopper's pulses),
+        estimate again without the lines the current does not answer as the estimated
+        winding would (aliases of the pulses, :mod:`observer.estimation.lines`): their
+        bands removed from ``va`` and ``ia`` alike.
     Other parameters
         As for :func:`estimate_field`.
     """
+    arguments = dict(
+        emf_constant=emf_constant, search_range=search_range, n_particles=n_particles,
+        max_iterations=max_iterations, schedule=schedule, w=w, x0=x0, init_range=init_range,
+        explore_fraction=explore_fraction, tol=tol, polish=polish,
+        compensate_input_noise=compensate_input_noise, intersample=intersample,
+        fit_shift=fit_shift, shift=shift, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
+        settled_rms=settled_rms, mismatch=mismatch, fit_speed=fit_speed,
+        voltage_alias=voltage_alias, identified_filter=identified_filter,
+    )  # fmt: skip
     problem = armature_problem(
         va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=intersample,
         fit_shift=fit_shift, shift=shift, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
@@ -199,6 +215,21 @@ def estimate_armature(
     jump = jump_stage(problem, fit) if polish else None
     std = std_stage(problem, fit, eiv, spec, jump)
     point = corrected_point(eiv.point, jump)
+    if notch_aliased and problem.inp.model == "smooth" and not any(problem.alias_v):
+        resistance, inductance = point.resistance_ohm, point.inductance_h
+        bands = aliased_lines(
+            kernel_array(va), kernel_array(ia), dt,
+            lambda f: complex(resistance, 2.0 * math.pi * f * inductance),
+        )  # fmt: skip
+        edge = settle_samples(bands, dt)
+        if bands and n - 2 * edge >= n // 2:
+            # Estimated again without them (and the notches' ringing at the ends).
+            keep = slice(edge, n - edge)
+            return estimate_armature(
+                notch(kernel_array(va), dt, bands)[keep], notch(kernel_array(ia), dt, bands)[keep],
+                kernel_array(i_f)[keep], kernel_array(omega)[keep], dt, rng=rng,
+                notch_aliased=False, **arguments,  # type: ignore[arg-type]
+            )  # fmt: skip
     coverage = problem.segments.covered / n
     note = pwm_note(va, "armature") or coverage_note(coverage, "armature")
     return CircuitEstimate(
