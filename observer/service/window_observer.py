@@ -46,6 +46,8 @@ skipped and counted by reason; nothing here raises into the caller's loop.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import logging
 import math
 import statistics
@@ -69,6 +71,7 @@ from observer.estimation import (
     estimate_field,
     field_search_range,
 )
+from observer.estimation.estimate import SIMEX_SEED
 from observer.estimation.filter_id import (
     IDENTIFIED_WINDINGS,
     FilterFit,
@@ -153,11 +156,13 @@ class _ChainState:
         if math.isfinite(est.mismatch_size) and math.isfinite(est.mismatch_shift):
             self.mismatches.setdefault(model, []).append((est.mismatch_size, est.mismatch_shift))
 
-    def decide(self) -> None:
+    def decide(self, noise_share: Callable[[], float] | None = None) -> None:
         """Majority model; its windows' delays averaged by inverse variance. Untold front
-        ends: the windows' median mismatch of the channels, and where it is large enough to
-        be corrected for (:func:`~observer.estimation.frontend.applied_mismatch`), the median
-        of the delays that go with it."""
+        ends: the windows' median mismatch of the channels, less what the voltage's noise
+        makes of it where it would be corrected for (``noise_share()``, see
+        :func:`~observer.estimation.estimate.with_learned_mismatch`), and where it still is
+        (:func:`~observer.estimation.frontend.applied_mismatch`), the median of the delays
+        that go with it."""
         model = self.votes.most_common(1)[0][0]
         pairs = self.shifts.get(model, [])
         if pairs:
@@ -166,6 +171,8 @@ class _ChainState:
         sizes = self.mismatches.get(model, [])
         if sizes:
             self.mismatch = float(np.median([a for a, _ in sizes]))
+            if applied_mismatch(self.mismatch) and noise_share is not None:
+                self.mismatch -= noise_share()
             if applied_mismatch(self.mismatch):
                 self.shift = float(np.median([d for _, d in sizes]))
         self.model = model
@@ -592,9 +599,9 @@ class SlidingWindowObserver:
 
     def _finish_circuit(self, prep: _Prepared, est: CircuitEstimate) -> None:
         """``prep.circuit``'s own state after its estimate: chain, warm start, search range."""
-        circuit, s, dt = prep.circuit, prep.signals, prep.dt
+        circuit = prep.circuit
         search = self._search[circuit]
-        self._learn_chain(circuit, est, s["vf" if circuit == "field" else "va"], dt, prep.index)
+        self._learn_chain(circuit, est, prep)
         search.warm = prep.warm
         if math.isfinite(est.inductance_h) and est.inductance_h > 0:
             search.last_l = est.inductance_h
@@ -655,9 +662,9 @@ class SlidingWindowObserver:
                     out["identified_filter"] = state.voltage_filter.best
         return out
 
-    def _learn_chain(
-        self, circuit: str, est: CircuitEstimate, voltage: np.ndarray, dt: float, index: int
-    ) -> None:
+    def _learn_chain(self, circuit: str, est: CircuitEstimate, prep: _Prepared) -> None:
+        voltage = prep.signals["vf" if circuit == "field" else "va"]
+        dt, index = prep.dt, prep.index
         state = self._chain_state[circuit]
         if self.chain.intersample != "auto" or self.config.decimate > 1:
             return
@@ -668,7 +675,7 @@ class SlidingWindowObserver:
             return
         state.record(est)
         if sum(state.votes.values()) >= self.config.chain_windows:
-            state.decide()
+            state.decide(functools.partial(self._noise_share, prep, est))
             self._identify_voltage_filter(circuit, state, voltage, dt, index)
             corrected = applied_mismatch(state.mismatch)
             log.info(
@@ -677,6 +684,25 @@ class SlidingWindowObserver:
                 f", untold channels corrected for {corrected:.2f} x the commonest mismatch "
                 "(an RC beside a 2nd-order filter)" if corrected else "",
             )  # fmt: skip
+
+    def _noise_share(self, prep: _Prepared, est: CircuitEstimate) -> float:
+        """What the voltage's noise adds to the mismatch of the channels this window measured:
+        the window estimated again with as much white noise more on its voltage as it read
+        (the same swarm draws), the growth of the size (0: not measurable, or none)."""
+        if not (est.input_noise_var > 0.0 and math.isfinite(est.mismatch_size)):
+            return 0.0
+        volt = "vf" if prep.circuit == "field" else "va"
+        noise = np.random.default_rng(SIMEX_SEED).standard_normal(prep.signals[volt].shape[0])
+        signals = dict(prep.signals)
+        signals[volt] = signals[volt] + noise * math.sqrt(est.input_noise_var)
+        rng = np.random.default_rng([self.config.seed, prep.index, _CIRCUIT_INDEX[prep.circuit]])
+        noisier = run_estimator(
+            dataclasses.replace(prep, signals=signals, kwargs={**prep.kwargs, "rng": rng})
+        )
+        grown = noisier.mismatch_size - est.mismatch_size
+        # Noise only ever adds to it (it reads as a low-pass of the voltage); a window's
+        # size that fell is that window's own scatter, not the noise's share.
+        return max(float(grown), 0.0) if math.isfinite(grown) else 0.0
 
     def _identify_voltage_filter(
         self, circuit: str, state: _ChainState, voltage: np.ndarray, dt: float, index: int
