@@ -35,6 +35,11 @@ Three findings come from the front end alone, whatever the motor does:
     (:func:`~observer.estimation.intersample.pwm_level_changes`). The
     estimator then describes no window of that winding, and no motor effect
     can be judged from it.
+``pulses_aliased``
+    The armature's voltage and current carry a line the current does not answer as the
+    winding would at that frequency (a chopper's pulses above the Nyquist frequency, seen at
+    their alias: 4 kHz sampled at 5 kHz reads 1 kHz); the estimator and the diagnosis leave
+    that band out (:mod:`observer.estimation.lines`).
 ``current_filtered_apart``
     The voltage was sampled without a filter (clean jumps) and the current
     through one: the current's bend after every jump rings out over the
@@ -291,6 +296,33 @@ def current_filter_finding(
         f"out over {settle} samples, which the estimator leaves out ({100 * share:.0f} % of the "
         "samples); the two channels do not see the converter alike",
         CURRENT_FILTER_ADVICE.format(ch=voltage, cur=current),
+    )
+
+
+#: Advice of a chain finding of kind ``pulses_aliased``.
+ALIASED_ADVICE = (
+    "sample at more than twice the converter's pulse frequency, or filter the {ch} and {cur} "
+    "channels well below it, or measure {ch} averaged over each period, and configure the "
+    "chain in [chain]"
+)
+
+
+def aliased_finding(
+    voltage: str, current: str, bands: list[tuple[float, float]]
+) -> ChainFinding | None:
+    """``pulses_aliased`` for the ``bands`` (Hz) of the voltage's lines that the current does
+    not answer as the winding would (:func:`~observer.estimation.lines.aliased_lines`)."""
+    if not bands:
+        return None
+    lines = ", ".join(f"{0.5 * (lo + hi):.0f} Hz" for lo, hi in bands)
+    return ChainFinding(
+        voltage,
+        "pulses_aliased",
+        f"measurement chain: {voltage} and {current} carry a line at {lines} that the current "
+        "does not answer as the winding would at that frequency: a converter's pulses above the "
+        "Nyquist frequency, seen at their alias; the band was left out of the estimate and of "
+        "the diagnosis",
+        ALIASED_ADVICE.format(ch=voltage, cur=current),
     )
 
 

@@ -86,6 +86,21 @@ def armature_problem(
     )  # fmt: skip
 
 
+def aliased_bands(
+    problem: WindingProblem, va: np.ndarray, ia: np.ndarray, resistance: float, inductance: float
+) -> list[tuple[float, float]]:
+    """The bands (Hz) of ``va``'s lines that ``ia`` does not answer as the winding at
+    ``(resistance, inductance)`` would (:func:`~observer.estimation.lines.aliased_lines`),
+    where the armature's voltage is read as ``smooth`` and shows no jumps (a chopper's
+    pulses); none elsewhere (a bridge's ripple below Nyquist is the winding's own)."""
+    if problem.inp.model != "smooth" or any(problem.alias_v):
+        return []
+    return aliased_lines(
+        kernel_array(va), kernel_array(ia), problem.dt,
+        lambda f: complex(resistance, 2.0 * math.pi * f * inductance),
+    )  # fmt: skip
+
+
 def estimate_armature(
     va: np.ndarray,
     ia: np.ndarray,
@@ -215,12 +230,8 @@ def estimate_armature(
     jump = jump_stage(problem, fit) if polish else None
     std = std_stage(problem, fit, eiv, spec, jump)
     point = corrected_point(eiv.point, jump)
-    if notch_aliased and problem.inp.model == "smooth" and not any(problem.alias_v):
-        resistance, inductance = point.resistance_ohm, point.inductance_h
-        bands = aliased_lines(
-            kernel_array(va), kernel_array(ia), dt,
-            lambda f: complex(resistance, 2.0 * math.pi * f * inductance),
-        )  # fmt: skip
+    if notch_aliased:
+        bands = aliased_bands(problem, va, ia, point.resistance_ohm, point.inductance_h)
         edge = settle_samples(bands, dt)
         if bands and n - 2 * edge >= n // 2:
             # Estimated again without them (and the notches' ringing at the ends).
