@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import logging
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -139,6 +140,12 @@ def voltage_filter(rec: Any, circuit: str, prefix: str = "") -> FilterFit:
 SIMEX_SEED = 20261127
 
 
+def simex_noise(n: int, var: float) -> np.ndarray:
+    """The white noise of variance ``var`` (V^2) that :func:`with_learned_mismatch` (and the
+    daemon's chain decision) adds to ``n`` voltage samples: always the same draws."""
+    return np.random.default_rng(SIMEX_SEED).standard_normal(n) * math.sqrt(var)
+
+
 class _WithVoltageNoise:
     """A recording whose ``channel`` carries white noise of variance ``var`` (V^2) more."""
 
@@ -146,8 +153,7 @@ class _WithVoltageNoise:
         self._rec = rec
         self._channel = channel
         x = np.asarray(rec[channel], dtype=float)
-        noise = np.random.default_rng(SIMEX_SEED).standard_normal(x.shape[0])
-        self._noisy = x + noise * float(np.sqrt(var))
+        self._noisy = x + simex_noise(x.shape[0], var)
         self.dt = rec.dt
 
     def __getitem__(self, name: str) -> Any:

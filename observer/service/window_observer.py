@@ -71,7 +71,7 @@ from observer.estimation import (
     estimate_field,
     field_search_range,
 )
-from observer.estimation.estimate import SIMEX_SEED
+from observer.estimation.estimate import simex_noise
 from observer.estimation.filter_id import (
     IDENTIFIED_WINDINGS,
     FilterFit,
@@ -692,9 +692,8 @@ class SlidingWindowObserver:
         if not (est.input_noise_var > 0.0 and math.isfinite(est.mismatch_size)):
             return 0.0
         volt = "vf" if prep.circuit == "field" else "va"
-        noise = np.random.default_rng(SIMEX_SEED).standard_normal(prep.signals[volt].shape[0])
         signals = dict(prep.signals)
-        signals[volt] = signals[volt] + noise * math.sqrt(est.input_noise_var)
+        signals[volt] = signals[volt] + simex_noise(signals[volt].shape[0], est.input_noise_var)
         rng = np.random.default_rng([self.config.seed, prep.index, _CIRCUIT_INDEX[prep.circuit]])
         noisier = run_estimator(
             dataclasses.replace(prep, signals=signals, kwargs={**prep.kwargs, "rng": rng})
