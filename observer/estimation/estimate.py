@@ -26,6 +26,13 @@ from observer.estimation.filter_id import (
     identify_voltage_filter,
 )
 from observer.estimation.frontend import applied_mismatch, winding_front_ends
+from observer.estimation.linearity import (
+    Linearity,
+    applies_to,
+    field_note,
+    nonlinear_note,
+    voltage_linearity,
+)
 from observer.estimation.ranges import EstimationError, SearchRange
 from observer.estimation.result import CircuitEstimate
 
@@ -115,6 +122,19 @@ def estimate_recording(
         if fit is not None and est.intersample == "smooth":
             est = dataclasses.replace(est, voltage_filter={**fit.to_dict(), "text": fit.text})
         out[circuit] = est
+    if "armature" in out:
+        # The armature voltage reading's linearity over the recording
+        # (:mod:`~observer.estimation.linearity`): a reading that follows a curve of the
+        # voltage does not describe the motor, whatever the fit says; nor does a field chopper's
+        # beside it. Not where the model puts the waveform between the samples itself.
+        result = (
+            voltage_linearity(rec["va"], rec["ia"], rec.dt, rec["if"], rec["omega"])
+            if applies_to(out["armature"].intersample)
+            else None
+        )
+        out["armature"] = with_linearity(out["armature"], result)
+        if "field" in out:
+            out["field"] = not_described(out["field"], field_note(result, rec["vf"], rec.dt))
     return out
 
 
@@ -192,6 +212,24 @@ def with_learned_mismatch(
         if not applied_mismatch(size):
             return first
     return refit(mismatch=size, shift=first.mismatch_shift)
+
+
+def with_linearity(est: CircuitEstimate, result: Linearity | None) -> CircuitEstimate:
+    """The armature's ``est`` with its voltage reading's linearity test ``result``, not
+    describing its window where the reading follows a curve (None: not tested)."""
+    if result is None:
+        return est
+    est = dataclasses.replace(est, voltage_linearity=result.to_dict())
+    return not_described(est, nonlinear_note(result, "armature"))
+
+
+def not_described(est: CircuitEstimate, note: str) -> CircuitEstimate:
+    """``est`` not describing its window for the reason ``note`` (unchanged without one)."""
+    if not note:
+        return est
+    return dataclasses.replace(
+        est, describes_window=False, note="; ".join(n for n in (est.note, note) if n)
+    )
 
 
 def _noisier(

@@ -71,6 +71,11 @@ class CircuitEstimate:
         (:meth:`~observer.estimation.filter_id.FilterFit.to_dict`, with its ``text`` in the
         ``[chain]`` grammar; ``alias`` None: not identified, the weakest filter in use
         assumed). None: not tried (configured front ends, a held voltage, a single window).
+    voltage_linearity : dict or None
+        Whether the voltage reading is linear in the voltage over the recording
+        (:meth:`~observer.estimation.linearity.Linearity.to_dict`; a converter's pulses
+        sampled in step with the ADC read as a curve). None: not tested (the field, whose
+        voltage follows its current; a recording too short).
     """
 
     circuit: str
@@ -96,6 +101,7 @@ class CircuitEstimate:
     mismatch_size: float = math.nan
     mismatch_shift: float = math.nan
     voltage_filter: Mapping[str, object] | None = None
+    voltage_linearity: Mapping[str, object] | None = None
 
     @property
     def time_constant_s(self) -> float:
@@ -140,6 +146,8 @@ class CircuitEstimate:
             out["note"] = self.note
         if self.voltage_filter is not None:
             out["voltage_filter"] = dict(self.voltage_filter)
+        if self.voltage_linearity is not None:
+            out["voltage_linearity"] = dict(self.voltage_linearity)
         out["iterations"] = self.pso.n_iterations
         out["evaluations"] = self.pso.n_evaluations
         out["search_range"] = {

@@ -1,0 +1,363 @@
+"""Whether a winding's voltage reading is linear in the voltage, seen at low frequency.
+
+A PWM converter's pulses sampled in step with the ADC (a 2 kHz carrier's 4 kHz pulses at
+fs = 2, 4 or 8 kHz; in general a harmonic ``N*f_p`` on a multiple of ``fs``) fold onto zero
+frequency: every sample meets the anti-aliasing filter's residual ripple at the same phase of
+the pulse, and what it adds depends on the duty cycle. The samples then read the voltage
+through a static curve ``v + e(v)``. Nothing in a window shows it (no line, no jump: the
+model sees a smooth voltage), its linear part is a gain error that moves ``R``, ``L`` and
+``K`` together (the P-12 behind a chopper at 4 kHz: K -4 % at 62 std, Rf -4.5 % at 32 std),
+and no model of the samples can take it out.
+
+Its curved part can be seen where the voltage moves over a range: below ~20 Hz every front
+end passes the winding's equation unchanged, ``v = R i + L di/dt + K if omega + c``, and a
+static curve of the voltage leaves an equation error that a polynomial in ``v`` explains
+(:func:`voltage_linearity`), once the motor's own curves (saturation, armature reaction, a
+speed sensor's load error: :data:`MOTOR_TERMS`) have had their chance. Measured on the
+simulator's choppers over 30 s (both motors, seeds 0-2, :data:`DEGREE` 8), as rms of the
+largest voltage:
+
+* sampled in step with the pulses (2, 4 and 8 kHz behind 4 kHz pulses): 0.34-1.5 % behind
+  Butterworth filters at fs/4, the curve explaining 83-100 % of the error; 0.43-2.8 % behind
+  RC voltage filters (24-92 %). Missed: one seed at 2 kHz whose voltage spans less, 0.08-0.09 %
+  (its estimates within tolerance, K 0.3-0.4 % off);
+* a chopper at 5 or 10 kHz behind Butterworth filters: at most 0.07 %; behind RC voltage
+  filters 0.21-0.30 % at 5 kHz (not flagged; Ra 2.7-3.5 % off on the 440 V motor) and
+  0.40-0.50 % at 10 kHz (flagged: Ra 3-6.5 % off at 5-9 std);
+* a thyristor bridge behind filters: at most 0.02 %; the motor's effects of the diagnosis
+  library on either drive (27 cases): at most 0.14 %, explaining at most 43 %.
+
+A reading is taken for a curve at :data:`CURVE_SIZE` with :data:`CURVE_SHARE`, or at
+:data:`CURVE_ALONE` (:attr:`Linearity.linear`); it is then not evidence about the motor, and
+the estimate says so and holds. Good voltage transducers (closed-loop Hall, isolation
+amplifiers) are linear to 0.1-0.2 % of their range: a curve above that is the converter.
+
+The curve shows only over a range of voltages: the first 8 s of a P-12 recording behind a
+chopper at 8 kHz gave 0.12 % of the largest voltage (at 2 kHz 0.15 %), under the limits, where
+12 s gave 0.94 % (0.32 %). A field's voltage follows
+its current (``v ~ R i``), so a curve of it is one of the current too and says nothing: the
+field is judged beside the armature instead (:func:`field_note`).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Below this frequency (Hz) the winding's equation is read: every anti-aliasing filter in use
+#: (cutoffs at fs/4 and above) passes it to within 0.1 %, and the control's swings are in it.
+LOW_HZ = 20.0
+
+#: Block means are taken to about this rate (Hz) before the low-pass.
+BLOCK_HZ = 200.0
+
+#: Degree of the polynomial in the voltage (terms 2..DEGREE: the constant and the linear part
+#: are the model's own offset and a gain that the parameters absorb).
+DEGREE = 8
+
+#: A curve that explains at least this share of the slow equation error ...
+CURVE_SHARE = 0.7
+
+#: ... and is at least this share of the largest voltage (rms), or one of at least
+#: :data:`CURVE_ALONE` whatever else the error holds, is not the sensor's.
+CURVE_SIZE = 0.002
+CURVE_ALONE = 0.003
+
+#: Seconds of recording the test needs (the edges of the low-pass left out).
+MIN_SECONDS = 5.0
+
+#: Left out at each end after the zero-phase low-pass (s).
+EDGE_S = 0.25
+
+#: The daemon tests the last this many seconds ...
+WATCH_SECONDS = 60.0
+
+#: ... every this many seconds of new data.
+RETEST_SECONDS = 10.0
+
+
+@dataclass(frozen=True)
+class Linearity:
+    """How far a voltage reading is from linear, over the low-frequency winding equation.
+
+    Attributes
+    ----------
+    curve_v : float
+        RMS of the slow equation error that a static curve of the voltage explains (V).
+    share : float
+        Share of the slow equation error's power it explains (0-1).
+    largest_v : float
+        The largest |voltage| of the recording (V, 99.5th percentile of the block means).
+    seconds : float
+        Length of the data tested (s).
+    """
+
+    curve_v: float
+    share: float
+    largest_v: float
+    seconds: float
+
+    @property
+    def linear(self) -> bool:
+        """False when the reading carries a static curve that is not the sensor's."""
+        size = self.curve_v / self.largest_v if self.largest_v > 0 else 0.0
+        return not ((self.share >= CURVE_SHARE and size >= CURVE_SIZE) or size >= CURVE_ALONE)
+
+    def to_dict(self) -> dict[str, float | bool]:
+        return {
+            "curve_v": self.curve_v,
+            "share": self.share,
+            "largest_v": self.largest_v,
+            "seconds": self.seconds,
+            "linear": self.linear,
+        }
+
+
+def applies_to(intersample: str) -> bool:
+    """Whether the test reads a voltage under the ``intersample`` model: not ``switched``,
+    whose model puts the converter's waveform between the samples itself (an unfiltered
+    bridge's samples are instantaneous values of its sine segments, apart from the period's
+    mean by what the firing angle, and so the voltage, decides: a curve of the voltage, 0.17-0.23 %
+    of the largest at 2 kHz, that the model already describes)."""
+    return intersample != "switched"
+
+
+def nonlinear_note(result: Linearity | None, circuit: str) -> str:
+    """Why a reading whose test is ``result`` cannot describe the ``circuit`` ("" when it can)."""
+    if result is None or result.linear:
+        return ""
+    return (
+        f"the {circuit} voltage's samples follow a curve of the voltage, not the voltage: "
+        f"{result.curve_v:.2g} V rms ({100 * result.curve_v / result.largest_v:.2g} % of the "
+        f"largest) explains {100 * result.share:.0f} % of the slow error of the winding's "
+        "equation. A converter's pulses sampled in step with the ADC fold onto zero "
+        "frequency and read as a gain and curve that no model of the samples can take out: "
+        "sample at a rate that is not a multiple of half the pulse frequency, or average the "
+        "voltage over each period"
+    )
+
+
+def field_note(armature: Linearity | None, field_voltage: np.ndarray, dt: float) -> str:
+    """Why the field cannot be described beside an armature whose reading is ``armature``
+    ("" when it can).
+
+    The field's voltage follows its current, so a curve cannot be seen in it. But where the
+    armature's pulses fold and the field's voltage shows no mains ripple, the field is fed by a
+    chopper too, on the drive's PWM clock as a rule, and its pulses fold alike: its steady
+    voltage reads a gain it cannot show (the simulator's field chopper at 4 and 8 kHz: Rf
+    1.6-8.6 % off at 2.5-47 std). A field bridge puts nearly all of its ripple at mains
+    harmonics (:func:`~observer.estimation.intersample.mains_ripple_share` 1.00, a chopper's
+    0.00-0.02) and is left as it is.
+    """
+    from observer.estimation.intersample import mains_ripple_share
+    from observer.estimation.stages import CONVERTER_RIPPLE
+
+    if armature is None or armature.linear:
+        return ""
+    v = np.asarray(field_voltage, dtype=np.float64)
+    if not np.all(np.isfinite(v)) or mains_ripple_share(v, dt) >= CONVERTER_RIPPLE:
+        return ""
+    return (
+        "the armature's voltage samples follow a curve of the voltage (a converter's pulses "
+        "sampled in step with the ADC), and the field's voltage shows no mains ripple: a "
+        "chopper's, whose pulses fold alike on the drive's PWM clock and read as a gain its "
+        "steady voltage cannot show; sample at a rate that is not a multiple of half the "
+        "pulse frequency, or average the voltages over each period"
+    )
+
+
+#: The motor's own curves, as block means beside the voltage's powers (armature only): the
+#: flux as a cubic in the field current (saturation) and, times it, in the armature current
+#: (armature reaction; a speed sensor's load-dependent error), each times the speed, and the
+#: speed times the armature current. Taken out first, they leave a curve of the voltage only
+#: what depends on the voltage itself (armature reaction 5 %: 0.81 % of the largest voltage
+#: without them, 0.04 % with them).
+MOTOR_TERMS = 7
+
+
+class LinearityAccumulator:
+    """Block means of what :func:`voltage_linearity` needs, added chunk by chunk.
+
+    The voltage's powers (and the motor's own curves, :data:`MOTOR_TERMS`) are averaged before
+    the low-pass (a curve acts on the instantaneous values); the voltage is scaled by the
+    first chunk's largest |voltage| so that its powers stay near 1.
+
+    Parameters
+    ----------
+    dt : float
+        Sample period (s).
+    keep_seconds : float, optional
+        Keep only the newest this many seconds (None: everything).
+    """
+
+    def __init__(self, dt: float, keep_seconds: float | None = None) -> None:
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0, got {dt}")
+        self.dt = float(dt)
+        self.block = max(1, int(round(1.0 / (BLOCK_HZ * dt))))
+        self.keep_blocks = (
+            None if keep_seconds is None else max(1, int(keep_seconds / (self.block * self.dt)))
+        )
+        self.scale: float | None = None
+        self.added_seconds = 0.0  # everything ever added (s), kept or not
+        self._rows: list[np.ndarray] = []
+        self._carry: np.ndarray | None = None
+
+    @property
+    def seconds(self) -> float:
+        """Seconds held (in whole blocks)."""
+        return sum(r.shape[0] for r in self._rows) * self.block * self.dt
+
+    def reset(self) -> None:
+        """Forget everything (a gap: the low-pass needs continuous data)."""
+        self._rows.clear()
+        self._carry = None
+
+    def add(
+        self,
+        voltage: np.ndarray,
+        current: np.ndarray,
+        field_current: np.ndarray | None = None,
+        speed: np.ndarray | None = None,
+    ) -> None:
+        """Append contiguous samples (the armature's with its ``field_current`` and ``speed``;
+        the field's without)."""
+        v = np.asarray(voltage, dtype=np.float64)
+        i = np.asarray(current, dtype=np.float64)
+        i_f = np.zeros_like(v) if field_current is None else np.asarray(field_current, float)
+        w = np.zeros_like(v) if speed is None else np.asarray(speed, dtype=np.float64)
+        if not (v.shape == i.shape == i_f.shape == w.shape) or v.ndim != 1:
+            raise ValueError("voltage, currents and speed must be 1-d arrays of one length")
+        if self.scale is None:
+            top = float(np.max(np.abs(v))) if v.size else 0.0
+            if not (math.isfinite(top) and top > 0):
+                return
+            self.scale = 1.5 * top
+        u = v / self.scale
+        emf = i_f * w
+        cols = np.empty((v.shape[0], DEGREE + 3 + MOTOR_TERMS))
+        cols[:, : DEGREE + 1] = u[:, None] ** np.arange(DEGREE + 1)
+        cols[:, DEGREE + 1] = i
+        cols[:, DEGREE + 2] = emf
+        motor = cols[:, DEGREE + 3 :]
+        motor[:, 0] = w
+        motor[:, 1] = emf * i_f
+        motor[:, 2] = emf * i_f * i_f
+        motor[:, 3] = emf * i
+        motor[:, 4] = emf * i * i
+        motor[:, 5] = emf * i * i * i
+        motor[:, 6] = w * i
+        if self._carry is not None:
+            cols = np.concatenate([self._carry, cols])
+        n = (cols.shape[0] // self.block) * self.block
+        if n:
+            self._rows.append(cols[:n].reshape(-1, self.block, cols.shape[1]).mean(axis=1))
+        self._carry = cols[n:] if n < cols.shape[0] else None
+        self.added_seconds += v.shape[0] * self.dt
+        held = sum(r.shape[0] for r in self._rows)
+        if self.keep_blocks is not None and held > 1.25 * self.keep_blocks:
+            self._rows = [np.concatenate(self._rows)[-self.keep_blocks :]]
+
+    def result(self, *, armature: bool) -> Linearity | None:
+        """The test over what was added (``armature``: with its EMF and the motor's own curves);
+        None with too little, or non-finite, data."""
+        return self.snapshot(armature=armature)()
+
+    def snapshot(self, *, armature: bool) -> Callable[[], Linearity | None]:
+        """:meth:`result` over what was added so far, to be computed later (in another
+        thread: the data are copied now; adding more does not change it)."""
+        if self.scale is None or not self._rows:
+            return lambda: None
+        rows = np.concatenate(self._rows)
+        if self.keep_blocks is not None:
+            rows = rows[-self.keep_blocks :]
+        if not np.all(np.isfinite(rows)):
+            return lambda: None
+        return functools.partial(_test, rows, self.scale, self.block * self.dt, armature=armature)
+
+
+def voltage_linearity(
+    voltage: np.ndarray,
+    current: np.ndarray,
+    dt: float,
+    field_current: np.ndarray | None = None,
+    speed: np.ndarray | None = None,
+) -> Linearity | None:
+    """Test a winding's voltage reading for a static curve (module docstring).
+
+    Parameters
+    ----------
+    voltage, current : (n,) arrays
+        The winding's voltage (V) and current (A), contiguous samples.
+    dt : float
+        Sample period (s).
+    field_current, speed : (n,) arrays, optional
+        The armature's ``if`` (A) and ``omega`` (rad/s); None for the field.
+
+    Returns
+    -------
+    Linearity or None
+        None when the recording is shorter than :data:`MIN_SECONDS` or not finite.
+    """
+    acc = LinearityAccumulator(dt)
+    acc.add(voltage, current, field_current, speed)
+    return acc.result(armature=field_current is not None and speed is not None)
+
+
+def _test(rows: np.ndarray, scale: float, dt_block: float, *, armature: bool) -> Linearity | None:
+    from scipy.signal import butter, filtfilt
+
+    n = rows.shape[0]
+    edge = int(math.ceil(EDGE_S / dt_block))
+    seconds = (n - 2 * edge) * dt_block
+    if seconds < MIN_SECONDS:
+        return None
+    powers = rows[:, : DEGREE + 1]
+    v = powers[:, 1] * scale
+    lo, hi = np.percentile(powers[:, 1], [0.5, 99.5])
+    largest = float(np.percentile(np.abs(v), 99.5))
+    if not (hi > lo and largest > 0):
+        return None
+    # T_j((u - c)/h) as a polynomial in u, applied to the block means of u^k.
+    curve = []
+    for j in range(2, DEGREE + 1):
+        coef = (
+            np.polynomial.Chebyshev.basis(j, domain=[lo, hi])
+            .convert(kind=np.polynomial.Polynomial)
+            .coef
+        )
+        curve.append(powers[:, : coef.shape[0]] @ coef)
+    current = rows[:, DEGREE + 1]
+    others = [rows[:, DEGREE + 2], *rows[:, DEGREE + 3 :].T] if armature else []
+    nyquist = 0.5 / dt_block
+    signals = [v, current, *others, *curve]
+    if LOW_HZ < 0.9 * nyquist:
+        b, a = butter(2, LOW_HZ / nyquist)
+        signals = [filtfilt(b, a, x) for x in signals]
+    keep = slice(edge, n - edge)
+    y = signals[0][keep]
+    base = [signals[1][keep], np.gradient(signals[1], dt_block)[keep], np.ones_like(y)]
+    base += [x[keep] for x in signals[2 : 2 + len(others)]]
+    a0 = _scaled(np.column_stack(base))
+    a1 = _scaled(np.column_stack(base + [x[keep] for x in signals[2 + len(others) :]]))
+    r0 = y - a0 @ np.linalg.lstsq(a0, y, rcond=None)[0]
+    r1 = y - a1 @ np.linalg.lstsq(a1, y, rcond=None)[0]
+    p0, p1 = float(np.mean(r0**2)), float(np.mean(r1**2))
+    if not p0 > 0:
+        return Linearity(0.0, 0.0, largest, seconds)
+    return Linearity(
+        curve_v=math.sqrt(max(p0 - p1, 0.0)),
+        share=max(0.0, 1.0 - p1 / p0),
+        largest_v=largest,
+        seconds=seconds,
+    )
+
+
+def _scaled(a: np.ndarray) -> np.ndarray:
+    """``a`` with unit-rms columns (the motor's curves span many decades in SI units)."""
+    norm = np.sqrt(np.mean(a**2, axis=0))
+    return a / np.where(norm > 0, norm, 1.0)
