@@ -71,13 +71,22 @@ from observer.estimation import (
     estimate_field,
     field_search_range,
 )
-from observer.estimation.estimate import simex_noise
+from observer.estimation.estimate import not_described, simex_noise
 from observer.estimation.filter_id import (
     IDENTIFIED_WINDINGS,
     FilterFit,
     identify_voltage_filter,
 )
 from observer.estimation.frontend import applied_mismatch, winding_front_ends
+from observer.estimation.linearity import (
+    RETEST_SECONDS,
+    WATCH_SECONDS,
+    Linearity,
+    LinearityAccumulator,
+    applies_to,
+    field_note,
+    nonlinear_note,
+)
 from observer.estimation.motor import MotorParameters
 from observer.estimation.result import kphi
 from observer.service.circuit_worker import CircuitWorker, WorkerFailed
@@ -330,6 +339,15 @@ class SlidingWindowObserver:
         # The untold voltage filters' identification (FILTER_DUE_S), started when first needed.
         self._identifier: ThreadPoolExecutor | None = None
         self._filter_due = max(1, math.ceil(FILTER_DUE_S / config.hop_s - 1e-9))
+        # The armature voltage reading's linearity over the last WATCH_SECONDS of contiguous
+        # samples (:mod:`observer.estimation.linearity`), tested every RETEST_SECONDS.
+        self._linearity: LinearityAccumulator | None = None
+        self._linearity_end_ns: int | None = None
+        self._linearity_tested_s = 0.0
+        self.voltage_linearity: Linearity | None = None
+        # A test under way beside the windows: its result and the window index it is used from
+        # (as for the filter identification, so that a replay gives the live numbers).
+        self._linearity_pending: tuple[Future[Linearity | None], int] | None = None
 
     def start_worker(self, wait_s: float = 0.0) -> bool:
         """Start the circuit worker (if ``parallel`` and not yet started), waiting up to
@@ -343,7 +361,8 @@ class SlidingWindowObserver:
 
     def close(self) -> None:
         """Stop the circuit worker, if one was started (the observer can go on without it),
-        and the filter identification's thread (an identification under way is dropped)."""
+        and the filter identification's thread (an identification or linearity test under
+        way is dropped)."""
         if self._worker is not None:
             self._worker.close()
             self._worker = None
@@ -353,6 +372,7 @@ class SlidingWindowObserver:
             self._identifier = None
         for state in self._chain_state.values():
             state.pending = None
+        self._linearity_pending = None
 
     @property
     def parallel_state(self) -> str:
@@ -465,6 +485,7 @@ class SlidingWindowObserver:
             "sample_rate_hz": 1.0 / period_s,
         }
         signals = dict(window.signals)
+        self._watch_linearity(window, period_s, index)
         flags: list[str] = []
         fits: dict[str, CircuitEstimate | None] = {}
         # Each circuit's estimate from the state before this window: prepared first, run
@@ -485,6 +506,7 @@ class SlidingWindowObserver:
                     raise prep
                 fit = self._remote_result(prep) if circuit == remote else run_estimator(prep)
                 self._finish_circuit(prep, fit)
+                fit = self._with_linearity(circuit, fit, signals, period_s)
                 fits[circuit] = fit
             except _ESTIMATION_ERRORS as exc:
                 self.counts[f"{circuit}_failed"] += 1
@@ -531,6 +553,76 @@ class SlidingWindowObserver:
         return WindowResult(
             index, t0, end_ns, out, arrival_ns=int(window.arrival_ns[-1]), events=tuple(events)
         )
+
+    def _watch_linearity(self, window: Window, period_s: float, index: int) -> None:
+        """Add the window's new armature samples to the linearity test; start a test when
+        due (in the identification thread, its result used from a fixed later window)."""
+        if "armature" not in self.circuits:
+            return
+        self._collect_linearity(index)
+        channels = [window.signals[c] for c in ("va", "ia", "if", "omega")]
+        if any(np.isnan(x[0]) for x in channels):
+            return
+        acc = self._linearity
+        last = self._linearity_end_ns
+        t = window.t_ns
+        if (
+            acc is None
+            or not math.isclose(acc.dt, period_s, rel_tol=1e-3)
+            or last is None
+            or int(t[0]) > last + int(1.5 * period_s * _NS)  # not contiguous: start again
+        ):
+            acc = self._linearity = LinearityAccumulator(period_s, keep_seconds=WATCH_SECONDS)
+            self._linearity_tested_s = 0.0
+            last = None
+        new = slice(None) if last is None else slice(int(np.searchsorted(t, last, "right")), None)
+        va, ia, i_f, omega = (np.asarray(x[new], dtype=np.float64) for x in channels)
+        if va.size:
+            acc.add(va, ia, i_f, omega)
+            self._linearity_end_ns = int(t[-1])
+        if (
+            acc.added_seconds - self._linearity_tested_s >= RETEST_SECONDS
+            and self._linearity_pending is None
+        ):
+            self._linearity_tested_s = acc.added_seconds
+            if self._identifier is None:
+                self._identifier = ThreadPoolExecutor(1, thread_name_prefix="dcobserver-filter")
+            job = self._identifier.submit(acc.snapshot(armature=True))
+            self._linearity_pending = (job, index + self._filter_due)
+
+    def _collect_linearity(self, index: int) -> None:
+        """From its window on, the linearity test's result (waiting for it)."""
+        if self._linearity_pending is None or index < self._linearity_pending[1]:
+            return
+        job, _ = self._linearity_pending
+        self._linearity_pending = None
+        result = job.result()
+        if result is None:
+            return
+        if self.voltage_linearity is None or result.linear != self.voltage_linearity.linear:
+            log.log(
+                logging.INFO if result.linear else logging.WARNING,
+                "armature voltage reading over the last %.0f s: %s (a curve of %.2g V rms, "
+                "%.2g %% of the largest voltage, explains %.0f %% of the slow equation error)%s",
+                result.seconds, "linear" if result.linear else "NOT linear", result.curve_v,
+                100 * result.curve_v / result.largest_v, 100 * result.share,
+                "" if result.linear else "; its windows are held",
+            )  # fmt: skip
+        self.voltage_linearity = result
+
+    def _with_linearity(
+        self, circuit: str, est: CircuitEstimate, window: dict[str, np.ndarray], period_s: float
+    ) -> CircuitEstimate:
+        """``est``, not describing its window while the armature's voltage reading follows a
+        curve of the voltage (and, for the field, its voltage shows no mains ripple: a
+        chopper's, :func:`~observer.estimation.linearity.field_note`)."""
+        result = self.voltage_linearity
+        if result is None or result.linear or not applies_to(est.intersample):
+            return est
+        if circuit == "armature":
+            est = dataclasses.replace(est, voltage_linearity=result.to_dict())
+            return not_described(est, nonlinear_note(result, "armature"))
+        return not_described(est, field_note(result, window["vf"], period_s))
 
     def _skip(self, index: int, t0: int, t1: int, reason: str) -> WindowResult:
         key = reason.split(":")[0]
@@ -1020,6 +1112,10 @@ class SlidingWindowObserver:
             "warnings": sorted(self.warnings),
             "range_factor": {c: t.factor for c, t in self._search.items()},
             "chain": {c: st.to_dict() for c, st in self._chain_state.items()},
+            # The armature voltage reading's linearity test, last result (None: not yet).
+            "voltage_linearity": (
+                self.voltage_linearity.to_dict() if self.voltage_linearity is not None else None
+            ),
             "tracker": dict(self.tracker.counts),
             # The armature's estimates in a second process: off, starting, on, failed.
             "parallel": {

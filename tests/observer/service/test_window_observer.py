@@ -511,3 +511,35 @@ def test_sensor_noise_is_not_learned_as_a_mismatch_of_the_channels(monkeypatch):
     monkeypatch.setattr(SlidingWindowObserver, "_noise_share", lambda self, prep, est: 0.0)
     fooled, _ = _run(_blocks(rec), hop_s=0.25, chain_windows=6, circuits="armature")
     assert fooled.health()["chain"]["armature"]["mismatch"] >= MISMATCH_APPLIED
+
+
+def test_a_voltage_reading_that_follows_a_curve_holds_the_armature():
+    """The P-12 behind a chopper whose 4 kHz pulses the 4 kHz ADC samples in step (filters
+    at fs/4, not configured): every sample meets the filter's ripple at one phase and reads
+    the voltage through a curve. Once the first seconds show it, the armature's windows say
+    their model does not describe them and nothing of them reaches the tracker, nor of the
+    field chopper's beside it; a chopper at 5 kHz (its pulses alias to a line) keeps
+    publishing."""
+    from bench.accuracy_rates import drive_spec
+
+    def run(fs, circuits):
+        rec = simulate(
+            P12, duration_s=13.0, sample_rate_hz=fs, seed=1, drive=drive_spec("chopper"),
+            drive_name="chopper",
+        )  # fmt: skip
+        return _run(_blocks(rec), circuits=circuits)
+
+    obs, results = run(4000.0, "both")
+    verdict = obs.health()["voltage_linearity"]
+    assert verdict is not None and verdict["linear"] is False and verdict["share"] > 0.9
+    held = [r.estimate["armature"] for r in results if r.t1_ns > 11.75e9]
+    assert held and all(not a["describes_window"] for a in held)
+    assert all("curve of the voltage" in a["note"] for a in held)
+    assert all(q != "ok" for a in held[-3:] for q in a["quality"].values())
+    early = [r.estimate["armature"] for r in results if r.t1_ns < 9.5e9]
+    assert any(a["describes_window"] for a in early)  # before the test had its data
+    fields = [r.estimate["field"] for r in results if r.t1_ns > 11.75e9]
+    assert all(not f["describes_window"] and "no mains ripple" in f["note"] for f in fields)
+    obs, results = run(5000.0, "armature")
+    assert obs.health()["voltage_linearity"]["linear"] is True
+    assert all(r.estimate["armature"]["describes_window"] for r in results)
