@@ -40,6 +40,11 @@ Three findings come from the front end alone, whatever the motor does:
     winding would at that frequency (a chopper's pulses above the Nyquist frequency, seen at
     their alias: 4 kHz sampled at 5 kHz reads 1 kHz); the estimator and the diagnosis leave
     that band out (:mod:`observer.estimation.lines`).
+``voltage_folded``
+    The armature's voltage samples follow a curve of the voltage, not the voltage: a
+    converter's pulses sampled in step with the ADC fold onto zero frequency
+    (:mod:`observer.estimation.linearity`). The estimator holds the armature, and no
+    armature effect is judged from it.
 ``current_filtered_apart``
     The voltage was sampled without a filter (clean jumps) and the current
     through one: the current's bend after every jump rings out over the
@@ -62,6 +67,7 @@ from observer.estimation.intersample import (
     find_switching,
     pwm_level_changes,
 )
+from observer.estimation.linearity import Linearity
 
 #: Line content in the top eighth-band below Nyquist at least this share of the one below
 #: it: the spectrum does not fall towards Nyquist (a filter of order n at fs/4 gives about
@@ -279,8 +285,13 @@ def front_end_finding(
 def current_filter_finding(
     voltage: str, current: str, v: np.ndarray, i: np.ndarray, dt: float | None = None
 ) -> ChainFinding | None:
-    """``current_filtered_apart`` if ``i`` rings out after ``v``'s clean jumps (``dt``: the
-    sample period, see :func:`~observer.estimation.intersample.find_switching`)."""
+    """``voltage_folded``
+        The armature's voltage samples follow a curve of the voltage, not the voltage: a
+        converter's pulses sampled in step with the ADC fold onto zero frequency
+        (:mod:`observer.estimation.linearity`). The estimator holds the armature, and no
+        armature effect is judged from it.
+    ``current_filtered_apart`` if ``i`` rings out after ``v``'s clean jumps (``dt``: the
+        sample period, see :func:`~observer.estimation.intersample.find_switching`)."""
     sw = find_switching(v, dt)
     if not sw.switched:
         return None
@@ -323,6 +334,31 @@ def aliased_finding(
         "Nyquist frequency, seen at their alias; the band was left out of the estimate and of "
         "the diagnosis",
         ALIASED_ADVICE.format(ch=voltage, cur=current),
+    )
+
+
+#: Advice of a chain finding of kind ``voltage_folded``.
+FOLDED_ADVICE = (
+    "sample at a rate that is not a multiple of half the converter's pulse frequency (behind a "
+    "2 kHz carrier's 4 kHz pulses, 5 or 10 kHz rather than 2, 4 or 8 kHz), or measure {ch} "
+    "averaged over each sample period, and configure it in [chain.{ch}]"
+)
+
+
+def folded_finding(channel: str, result: Linearity | None) -> ChainFinding | None:
+    """``voltage_folded`` if the linearity test ``result`` of ``channel`` found a curve."""
+    if result is None or result.linear:
+        return None
+    return ChainFinding(
+        channel,
+        "voltage_folded",
+        f"measurement chain: {channel}'s samples follow a curve of the voltage "
+        f"({result.curve_v:.2g} V rms, {100 * result.curve_v / result.largest_v:.2g} % of the "
+        f"largest, explains {100 * result.share:.0f} % of the slow error of the winding's "
+        "equation): a converter's pulses sampled in step with the ADC, folded onto zero "
+        "frequency, read as a gain and a curve that no model of the samples takes out; the "
+        "winding is not estimated from it, and no effect on it judged",
+        FOLDED_ADVICE.format(ch=channel),
     )
 
 

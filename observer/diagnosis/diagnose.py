@@ -56,6 +56,7 @@ from observer.diagnosis.chain import (
     alias_finding,
     aliased_finding,
     current_filter_finding,
+    folded_finding,
     front_end_finding,
     no_filter_finding,
     pwm_finding,
@@ -89,6 +90,7 @@ from observer.estimation import CircuitEstimate, estimate_armature, estimate_fie
 from observer.estimation.armature import aliased_bands, armature_problem
 from observer.estimation.frontend import winding_front_ends
 from observer.estimation.intersample import MIN_SWITCHED_SHARE, InputModel, find_switching
+from observer.estimation.linearity import applies_to, voltage_linearity
 from observer.estimation.lines import notch, settle_samples
 from observer.estimation.problem import make_problem
 from observer.estimation.ranges import kernel_array
@@ -611,19 +613,35 @@ def decide_verdict(
     description = _describe(verdict, findings, located.structure, located.mismatch, floors)
     periodic = _periodic(rec, baseline.residuals, floors)
     structure = tuple(sorted(located.structure + tuple(periodic), key=lambda s_: -s_.z))
+    spectra = {c: voltage_spectrum(rec[v], rec.dt) for c, v in VOLTAGE_CHANNEL.items()}
+    chain = front_end_findings(rec, baseline, spectra)
+
+    def with_finding(kind: str) -> set[str]:
+        return {
+            c
+            for c, v in VOLTAGE_CHANNEL.items()
+            if any(f.kind == kind and f.channel == v for f in chain)
+        }
+
+    unfiltered = with_finding("no_anti_aliasing")
+    # A winding whose voltage reads a curve of the voltage: nothing on it is the motor's.
+    curved = with_finding("voltage_folded")
+    periodic = [s_ for s_ in periodic if _circuit(s_) not in curved]
     words = [s_.description for s_ in periodic]
     strong = _strong(structure)
     mismatch = located.mismatch
-    spectra = {c: voltage_spectrum(rec[v], rec.dt) for c, v in VOLTAGE_CHANNEL.items()}
-    chain = front_end_findings(rec, baseline, spectra)
-    unfiltered = {
-        c
-        for c, v in VOLTAGE_CHANNEL.items()
-        if any(f.kind == "no_anti_aliasing" and f.channel == v for f in chain)
-    }
     change_v: dict[str, float] = {}
     if verdict != NONE:
         change_v = effect_size_v(baseline, cands.models[verdict], cands.fits[verdict].full)
+        if curved & set(change_v):
+            c = sorted(curved & set(change_v))[0]
+            description = (
+                f"{_describe(NONE, findings, (), (), floors)}; {verdict} would earn its "
+                f"parameters, but the {c} circuit's voltage samples follow a curve of the "
+                "voltage (see the chain findings): not told apart from the chain"
+            )
+            verdict = NONE
+            change_v = {}
         hidden = {c for c in unfiltered & set(change_v) if change_v[c] < spectra[c].alias_v}
         if hidden:
             # Without a filter, what the converter does above Nyquist folds into the samples
@@ -684,7 +702,7 @@ def decide_verdict(
             strong, mismatch = [], ()
             description += "; " + "; ".join(f"{c.description} ({c.advice})" for c in found)
             chain = found + chain
-    if verdict == NONE and not words and unfiltered:
+    if verdict == NONE and not words and (unfiltered or curved):
         # A voltage sampled without an anti-aliasing filter leaves the winding's residual
         # above the floor, in windows and in structure no larger than its folded content
         # can cause: that is the chain's, and said so. Larger structure is not excused.
@@ -693,7 +711,7 @@ def decide_verdict(
             for s_ in strong
             if _offset_v(s_, baseline, floors) > spectra[_circuit(s_)].alias_v
         }
-        excused = unfiltered - beyond
+        excused = (unfiltered - beyond) | curved
         if excused & (excess | {_circuit(m) for m in mismatch} | {_circuit(s_) for s_ in strong}):
             mismatch = tuple(m for m in mismatch if _circuit(m) not in excused)
             strong = [s_ for s_ in strong if _circuit(s_) not in excused]
@@ -701,8 +719,13 @@ def decide_verdict(
             description += (
                 "; the residual of the "
                 + " and ".join(sorted(excused))
-                + " circuit is above the noise floor by no more than a voltage sampled without "
-                "an anti-aliasing filter can leave it (see the chain findings)"
+                + " circuit is above the noise floor by no more than "
+                + (
+                    "a voltage sampled without an anti-aliasing filter can leave it"
+                    if excused - curved
+                    else "a voltage read through a curve leaves it"
+                )
+                + " (see the chain findings)"
             )
     if verdict == NONE and (strong or mismatch or words or excess):
         verdict = UNEXPLAINED
@@ -868,6 +891,7 @@ def front_end_findings(
         name = "Lf" if circuit == "field" else "La"
         for found in (
             pwm_finding(voltage, kernel_array(rec[voltage])),
+            _folded(rec, est) if circuit == "armature" else None,
             no_filter_finding(voltage, spectra[circuit]),
             skew_finding(voltage, CURRENT_CHANNEL[circuit], shift, std, rec.dt),
             front_end_finding(
@@ -884,6 +908,15 @@ def front_end_findings(
             if found is not None:
                 out.append(found)
     return tuple(out)
+
+
+def _folded(rec: Any, armature: CircuitEstimate) -> ChainFinding | None:
+    """``voltage_folded`` if the armature's voltage reads a curve of the voltage
+    (:mod:`~observer.estimation.linearity`), where the test applies."""
+    if not applies_to(armature.intersample):
+        return None
+    result = voltage_linearity(rec["va"], rec["ia"], rec.dt, rec["if"], rec["omega"])
+    return folded_finding("va", result)
 
 
 def _strong(structure: Sequence[ConditionStructure]) -> list[ConditionStructure]:

@@ -199,4 +199,26 @@ def test_a_healthy_motor_behind_a_chopper_at_5_khz_is_none_its_aliased_pulses_a_
     assert len(aliased) == 1 and aliased[0].channel == "va"
     assert "1000 Hz" in aliased[0].description
     # A bridge's ripple is the winding's own: nothing aliased there.
+    assert not any(f.kind == "voltage_folded" for f in diag.chain)
     assert not any(f.kind == "pulses_aliased" for f in diagnose(_recording()).chain)
+
+
+def test_a_chopper_sampled_in_step_with_its_pulses_is_a_chain_finding_not_a_motor_effect():
+    """The chopper's 4 kHz pulses sampled at 4 kHz: every sample meets the filter's ripple
+    at one phase, and va reads as a curve of the voltage. The diagnosis put the ia residual,
+    periodic in shaft angle, to the motor (``armature_reaction`` the nearest effect); now the
+    chain says what it is and what to do, and nothing on the armature is judged from it."""
+    from bench.accuracy_rates import drive_spec
+
+    rec = simulate(
+        P12, duration_s=12.0, sample_rate_hz=4000.0, seed=1, drive=drive_spec("chopper"),
+        drive_name="chopper",
+    )  # fmt: skip
+    diag = diagnose(rec)
+    folded = [f for f in diag.chain if f.kind == "voltage_folded"]
+    assert len(folded) == 1 and folded[0].channel == "va", [f.kind for f in diag.chain]
+    assert "averaged" in folded[0].advice and "multiple of half" in folded[0].advice
+    assert diag.verdict in {NONE, UNEXPLAINED}, diag.verdict
+    # Nothing on the armature is put to the motor (the field's chopper folds too, and its
+    # residual, whose voltage the test cannot read, may stay unexplained).
+    assert "ia residual" not in diag.description, diag.description
