@@ -78,6 +78,7 @@ from observer.estimation.filter_id import (
     identify_voltage_filter,
 )
 from observer.estimation.frontend import applied_mismatch, winding_front_ends
+from observer.estimation.intersample import mains_ripple_share
 from observer.estimation.linearity import (
     RETEST_SECONDS,
     WATCH_SECONDS,
@@ -89,6 +90,7 @@ from observer.estimation.linearity import (
 )
 from observer.estimation.motor import MotorParameters
 from observer.estimation.result import kphi
+from observer.estimation.stages import CONVERTER_RIPPLE
 from observer.service.circuit_worker import CircuitWorker, WorkerFailed
 from observer.service.ringbuffer import RingBuffer, Window
 from observer.service.speed import SpeedEstimate, TachometerCheck, emf_speed
@@ -617,12 +619,34 @@ class SlidingWindowObserver:
         curve of the voltage (and, for the field, its voltage shows no mains ripple: a
         chopper's, :func:`~observer.estimation.linearity.field_note`)."""
         result = self.voltage_linearity
+        if result is None and "armature" in self.circuits and est.intersample == "smooth":
+            # Not tested yet: a measured voltage that no bridge made may be a chopper's
+            # sampled in step, confidently wrong in every window; held until the test says.
+            return not_described(est, self._untested_note(circuit, window, period_s))
         if result is None or result.linear or not applies_to(est.intersample):
             return est
         if circuit == "armature":
             est = dataclasses.replace(est, voltage_linearity=result.to_dict())
             return not_described(est, nonlinear_note(result, "armature"))
         return not_described(est, field_note(result, window["vf"], period_s))
+
+    def _untested_note(self, circuit: str, window: dict[str, np.ndarray], period_s: float) -> str:
+        """Why ``circuit``'s window is held before the armature voltage's first linearity
+        test ("" when it is not): the voltages it depends on show no mains ripple, so no
+        bridge made them (:func:`~observer.estimation.linearity.field_note`). A chopper whose
+        pulses alias onto a mains harmonic (4 kHz at 5 kHz: 1 kHz) passes for a bridge here;
+        its pulses are then not in step with the samples."""
+        voltages = ("va",) if circuit == "armature" else ("va", "vf")
+        for name in voltages:
+            v = np.asarray(window[name], dtype=np.float64)
+            if not np.all(np.isfinite(v)) or mains_ripple_share(v, period_s) >= CONVERTER_RIPPLE:
+                return ""
+        return (
+            f"the {circuit} voltage is measured and shows no mains ripple (a chopper's or a "
+            "DC source's): whether its samples read the voltage or a curve of it (a chopper's "
+            "pulses sampled in step with the ADC) is tested over the first "
+            f"{RETEST_SECONDS:.0f} s of the armature's; held until then"
+        )
 
     def _skip(self, index: int, t0: int, t1: int, reason: str) -> WindowResult:
         key = reason.split(":")[0]
