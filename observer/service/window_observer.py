@@ -78,7 +78,6 @@ from observer.estimation.filter_id import (
     identify_voltage_filter,
 )
 from observer.estimation.frontend import applied_mismatch, winding_front_ends
-from observer.estimation.intersample import mains_ripple_share
 from observer.estimation.linearity import (
     RETEST_SECONDS,
     WATCH_SECONDS,
@@ -86,11 +85,11 @@ from observer.estimation.linearity import (
     LinearityAccumulator,
     applies_to,
     field_note,
+    made_by_a_bridge,
     nonlinear_note,
 )
 from observer.estimation.motor import MotorParameters
 from observer.estimation.result import kphi
-from observer.estimation.stages import CONVERTER_RIPPLE
 from observer.service.circuit_worker import CircuitWorker, WorkerFailed
 from observer.service.ringbuffer import RingBuffer, Window
 from observer.service.speed import SpeedEstimate, TachometerCheck, emf_speed
@@ -633,14 +632,10 @@ class SlidingWindowObserver:
     def _untested_note(self, circuit: str, window: dict[str, np.ndarray], period_s: float) -> str:
         """Why ``circuit``'s window is held before the armature voltage's first linearity
         test ("" when it is not): the voltages it depends on show no mains ripple, so no
-        bridge made them (:func:`~observer.estimation.linearity.field_note`). A chopper whose
-        pulses alias onto a mains harmonic (4 kHz at 5 kHz: 1 kHz) passes for a bridge here;
-        its pulses are then not in step with the samples."""
+        bridge made them (:func:`~observer.estimation.linearity.made_by_a_bridge`)."""
         voltages = ("va",) if circuit == "armature" else ("va", "vf")
-        for name in voltages:
-            v = np.asarray(window[name], dtype=np.float64)
-            if not np.all(np.isfinite(v)) or mains_ripple_share(v, period_s) >= CONVERTER_RIPPLE:
-                return ""
+        if any(made_by_a_bridge(window[name], period_s) for name in voltages):
+            return ""
         return (
             f"the {circuit} voltage is measured and shows no mains ripple (a chopper's or a "
             "DC source's): whether its samples read the voltage or a curve of it (a chopper's "

@@ -103,8 +103,17 @@ def test_the_whole_recording_estimate_holds_a_reading_that_follows_a_curve():
 
 
 def test_a_field_bridge_beside_a_folded_armature_is_estimated_as_before():
-    """A field bridge's ripple sits at mains harmonics: not a chopper on the PWM clock."""
-    from observer.estimation.linearity import field_note
+    """A field bridge's ripple sits at mains harmonics: not a chopper on the PWM clock. A
+    chopper's alias that lands on one (4 kHz pulses at 5 kHz: 1 kHz = 20 x 50 Hz) is not
+    taken for a bridge's ripple."""
+    from observer.estimation.linearity import field_note, made_by_a_bridge
+
+    bridge = _bridge_field_recording()
+    aliased = _recording("chopper", 5000.0)
+    n = int(1 / aliased.dt)
+    assert made_by_a_bridge(bridge.signals["vf"][:4000], bridge.dt)
+    assert not made_by_a_bridge(aliased.signals["vf"][:n], aliased.dt)
+    assert not made_by_a_bridge(aliased.signals["va"][:n], aliased.dt)
 
     folded = _linearity(_recording("chopper", 4000.0))
     assert not folded.linear

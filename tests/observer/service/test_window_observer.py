@@ -556,3 +556,5 @@ def test_a_voltage_reading_that_follows_a_curve_holds_the_armature():
     obs, results = run(5000.0, "armature")
     assert obs.health()["voltage_linearity"]["linear"] is True
     assert all(a["describes_window"] for a in windows(results, "armature", True))
+    before = windows(results, "armature", False)
+    assert all(not a["describes_window"] for a in before if a["chain"]["intersample"] == "smooth")
