@@ -26,6 +26,7 @@ there, so a long run can be stopped and resumed.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import multiprocessing
@@ -68,6 +69,26 @@ def front_end_of(job: dict[str, Any]) -> str:
     return str(job.get("front_end", "butter2"))
 
 
+#: The chopper's PWM carrier (Hz) where a case does not name one: the simulator's default.
+DEFAULT_CARRIER_HZ = 2000.0
+
+
+def carrier_of(job: dict[str, Any]) -> float | None:
+    """A chopper case's carrier (Hz; rows written before there were several: the default);
+    None for other drives."""
+    if job["drive"] != "chopper":
+        return None
+    return float(job.get("carrier_hz") or DEFAULT_CARRIER_HZ)
+
+
+def drive_label(job: dict[str, Any]) -> str:
+    """The drive's name in the table, with a chopper's carrier where it is not the default."""
+    carrier = carrier_of(job)
+    if carrier is None or carrier == DEFAULT_CARRIER_HZ:
+        return str(job["drive"])
+    return f"{job['drive']} {carrier / 1000:g} kHz carrier"
+
+
 def front_end_drive(drive: Any, front_end: str) -> Any:
     """``drive`` with front end ``front_end`` (:data:`FRONT_ENDS`) on its channels."""
     from observer.config import parse_filter
@@ -98,6 +119,9 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     motor = MOTORS[job["motor"]]
     front_end = front_end_of(job)
     drive = front_end_drive(drive_spec(job["drive"]), front_end)
+    carrier = carrier_of(job)
+    if carrier is not None and carrier != DEFAULT_CARRIER_HZ:
+        drive = drive.replace(converter=dataclasses.replace(drive.converter, switching_hz=carrier))
     t0 = time.perf_counter()
     rec = simulate(
         motor, duration_s=job["duration"], sample_rate_hz=job["rate"], noise=job["noise"],
@@ -108,6 +132,8 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     results = estimate_recording(rec, chain=drive.chain.to_config() if told else None)
     t2 = time.perf_counter()
     out = dict(job)
+    if carrier is not None:
+        out["carrier_hz"] = float(rec.metadata["converter"]["armature"]["switching_hz"])
     out["simulate_s"], out["estimate_s"] = t1 - t0, t2 - t1
     est = {circuit: r.to_dict() for circuit, r in results.items()}
     for name, (circuit, key, field) in PARAMETERS.items():
@@ -135,19 +161,21 @@ def jobs(args: argparse.Namespace) -> list[dict[str, Any]]:
             "seed": seed,
             "duration": args.duration,
             "noise": args.noise,
+            **({"carrier_hz": carrier} if carrier is not None else {}),
         }  # fmt: skip
         for motor in args.motors
         for front_end in args.front_ends
         for rate in args.rates
         for drive in args.drives
+        for carrier in (args.carriers if drive == "chopper" else [None])
         for seed in range(args.seeds)
     ]
 
 
 def _key(job: dict[str, Any]) -> tuple[Any, ...]:
     return (
-        job["motor"], front_end_of(job), job["rate"], job["drive"], job["seed"],
-        job["duration"], job["noise"],
+        job["motor"], front_end_of(job), job["rate"], job["drive"], carrier_of(job),
+        job["seed"], job["duration"], job["noise"],
     )  # fmt: skip
 
 
@@ -160,7 +188,7 @@ def table(rows: list[dict[str, Any]]) -> str:
     ]
 
     def case(r: dict[str, Any]) -> tuple[Any, ...]:
-        return (r["motor"], front_end_of(r), r["rate"], r["drive"])
+        return (r["motor"], front_end_of(r), r["rate"], drive_label(r))
 
     for motor, front_end, rate, drive in sorted({case(r) for r in rows}):
         cell = [r for r in rows if case(r) == (motor, front_end, rate, drive)]
@@ -205,6 +233,11 @@ def main(argv: list[str] | None = None) -> int:
         help="front ends (voltage / current filters, told to the estimator or not): " + "; ".join(
             f"{k}: {v} / {i}{'' if t else ', untold'}" for k, (v, i, t) in FRONT_ENDS.items()
         ),
+    )  # fmt: skip
+    parser.add_argument(
+        "--carriers", type=lambda s: [float(x) for x in s.split(",")],
+        default=str(DEFAULT_CARRIER_HZ), metavar="HZ,...",
+        help="the chopper's PWM carriers (Hz; its pulses at twice each)",
     )  # fmt: skip
     parser.add_argument("--duration", type=float, default=30.0, metavar="S", help="length (s)")
     parser.add_argument("--noise", type=float, default=0.002, metavar="FRACTION",

@@ -45,6 +45,22 @@ def test_the_table_has_a_row_per_rate_drive_and_parameter():
         "1",
     ]
     assert lines[-1].startswith("| p12 | butter2 | 5 kHz | thyristor | K | 1 | 0.50 %")
+    # another carrier is its own row (a row without one has the default)
+    other = [dict(r, carrier_hz=1500.0) for r in rows[:1]]
+    assert "| chopper 1.5 kHz carrier | Rf |" in table(rows[:1] + other)
+    assert len(table(rows[:1] + other).splitlines()) == 2 + 2 * len(PARAMETERS)
+
+
+def test_a_carrier_reaches_the_simulated_chopper():
+    """A case's carrier is the simulated chopper's (read back from the recording)."""
+    from bench.accuracy_rates import carrier_of, run_case
+
+    job = {"motor": "p12", "rate": 2000.0, "drive": "chopper", "front_end": "butter2-untold",
+           "seed": 0, "duration": 3.0, "noise": 0.002, "carrier_hz": 3000.0}  # fmt: skip
+    row = run_case(job)
+    assert row["carrier_hz"] == 3000.0
+    assert carrier_of({"drive": "chopper"}) == drive_spec("chopper").converter.switching_hz
+    assert carrier_of({"drive": "thyristor"}) is None
 
 
 def test_front_ends_put_their_filters_on_the_channels():
@@ -61,8 +77,13 @@ def test_jobs_and_bad_arguments(capsys):
     import argparse
 
     args = argparse.Namespace(motors=["p12"], front_ends=["butter2", "none"], rates=[2e3, 5e3],
-                              drives=["chopper"], seeds=3, duration=30.0, noise=0.002)  # fmt: skip
-    assert len(jobs(args)) == 12
+                              drives=["chopper", "thyristor"], seeds=3, duration=30.0,
+                              noise=0.002, carriers=[2e3, 1.5e3])  # fmt: skip
+    todo = jobs(args)
+    # the chopper once per carrier, the thyristor drive once
+    assert len(todo) == 12 * 3
+    assert {j.get("carrier_hz") for j in todo if j["drive"] == "chopper"} == {2e3, 1.5e3}
+    assert all("carrier_hz" not in j for j in todo if j["drive"] == "thyristor")
     for bad in (["--front-ends", "fancy"], ["--motors", "p13"]):
         with pytest.raises(SystemExit) as exc:
             main([*bad, "--no-progress"])
