@@ -618,7 +618,7 @@ class SlidingWindowObserver:
         curve of the voltage (and, for the field, its voltage shows no mains ripple: a
         chopper's, :func:`~observer.estimation.linearity.field_note`)."""
         result = self.voltage_linearity
-        if result is None and "armature" in self.circuits and est.intersample == "smooth":
+        if result is None and self._armature_measured(circuit, est):
             # Not tested yet: a measured voltage that no bridge made may be a chopper's
             # sampled in step, confidently wrong in every window; held until the test says.
             return not_described(est, self._untested_note(circuit, window, period_s))
@@ -628,6 +628,18 @@ class SlidingWindowObserver:
             est = dataclasses.replace(est, voltage_linearity=result.to_dict())
             return not_described(est, nonlinear_note(result, "armature"))
         return not_described(est, field_note(result, window["vf"], period_s))
+
+    def _armature_measured(self, circuit: str, est: CircuitEstimate) -> bool:
+        """Whether the armature's voltage is read as measured (``smooth``), by this window or,
+        for a window read as held and for the field beside it, by most of the armature's
+        windows so far: an in-step chopper's steady stretches read as a held reference, and
+        a field chopper's steady voltage nearly always does."""
+        if "armature" not in self.circuits or not applies_to(est.intersample):
+            return False
+        if circuit == "armature" and est.intersample == "smooth":
+            return True
+        votes = self._chain_state["armature"].votes
+        return votes["smooth"] > votes["hold"]
 
     def _untested_note(self, circuit: str, window: dict[str, np.ndarray], period_s: float) -> str:
         """Why ``circuit``'s window is held before the armature voltage's first linearity
