@@ -1180,6 +1180,9 @@ def warm_up_kernels() -> float:
     filter_id.warm_up()
     dt = 1e-3
     va, ia, vf, i_f, omega = _synthetic_windings(P12, n=200, dt=dt)
+    # The bridge check's and the linearity test's scipy.signal: ~0.6 s to import, which the
+    # first untested window (or the test's thread, holding the GIL) would otherwise wait for.
+    made_by_a_bridge(va, dt)
     # The compensated swarm's call, whatever the fits below reach.
     emf = kernels.emf_input(i_f, omega)
     x = np.log10([[3.5, 0.02]])
