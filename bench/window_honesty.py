@@ -12,6 +12,10 @@ whole recording as the daemon does over its first windows, then estimate every
 - ``cov``: share of those within 2.5 std of the truth;
 - ``tol``: share of those within the tolerance (Rf, Lf, K 1 %, Ra 2 %, La 5 %).
 
+A window the daemon holds for its voltage reading (a chopper's pulses sampled in step,
+:mod:`observer.estimation.linearity`: tested over the last 60 s every 10 s, and held until
+the first result where no bridge made the voltage) is not ``ok``.
+
     python -m bench.window_honesty --seeds 3 --rates 2000,5000 --out docs/window_honesty.md
 
 Takes ~20 s per recording on a quiet 2-core machine.
@@ -86,6 +90,48 @@ def _drive(name: str):  # type: ignore[no-untyped-def]
             chain = chain.with_channel(ch, filter="none", order=0)
         return drive_spec("thyristor").replace(chain=chain)
     raise SystemExit(f"unknown drive {name!r}")
+
+
+def _daemon_holds(
+    sig: dict[str, np.ndarray], dt: float, win: int, hop: int, armature_model: str
+) -> list[tuple[bool, bool]]:
+    """Per window, whether the daemon holds (field, armature) for its voltage reading's
+    linearity (:mod:`observer.estimation.linearity`): tested over the last
+    ``WATCH_SECONDS`` every ``RETEST_SECONDS``, the result used 1.5 s later (the daemon's
+    ``FILTER_DUE_S``), and before the first result a measured voltage no bridge made held."""
+    from observer.estimation.linearity import (
+        RETEST_SECONDS,
+        WATCH_SECONDS,
+        applies_to,
+        field_note,
+        made_by_a_bridge,
+        voltage_linearity,
+    )
+
+    n = sig["va"].shape[0]
+    tests = []  # (window end from which used, result)
+    for k in range(1, int(n * dt / RETEST_SECONDS) + 1):
+        end = int(round(k * RETEST_SECONDS / dt))
+        part = slice(max(0, end - int(round(WATCH_SECONDS / dt))), end)
+        result = voltage_linearity(
+            sig["va"][part], sig["ia"][part], dt, sig["if"][part], sig["omega"][part]
+        )
+        if result is not None:
+            tests.append((end + int(round(1.5 / dt)), result))
+    out = []
+    for start in range(0, n - win + 1, hop):
+        end = start + win
+        s = slice(start, end)
+        known = [r for due, r in tests if due <= end]
+        result = known[-1] if known else None
+        if not applies_to(armature_model):
+            out.append((False, False))
+        elif result is None:
+            measured = armature_model == "smooth" and not made_by_a_bridge(sig["va"][s], dt)
+            out.append((measured and not made_by_a_bridge(sig["vf"][s], dt), measured))
+        else:
+            out.append((bool(field_note(result, sig["vf"][s], dt)), not result.linear))
+    return out
 
 
 def run_case(
@@ -169,6 +215,7 @@ def run_case(
     limit = np.array([*quality.limits("field").values(), *quality.limits("armature").values()])
     n = sig["va"].shape[0]
     win, hop = case.rate, case.rate // 2
+    held = _daemon_holds(sig, dt, win, hop, whole_a.intersample)
     rows = []
     for i, start in enumerate(range(0, n - win + 1, hop)):
         s = slice(start, start + win)
@@ -188,6 +235,7 @@ def run_case(
                         a.emf_constant_h])  # fmt: skip
         std = np.array([f.std["R"], f.std["L"], a.std["R"], a.std["L"], a.std["K"]])
         described = np.array([f.describes_window] * 2 + [a.describes_window] * 3)
+        described &= ~np.array([held[i][0]] * 2 + [held[i][1]] * 3)
         rows.append((est, std, described))
     est = np.array([r[0] for r in rows])
     std = np.array([r[1] for r in rows])
