@@ -285,13 +285,8 @@ def front_end_finding(
 def current_filter_finding(
     voltage: str, current: str, v: np.ndarray, i: np.ndarray, dt: float | None = None
 ) -> ChainFinding | None:
-    """``voltage_folded``
-        The armature's voltage samples follow a curve of the voltage, not the voltage: a
-        converter's pulses sampled in step with the ADC fold onto zero frequency
-        (:mod:`observer.estimation.linearity`). The estimator holds the armature, and no
-        armature effect is judged from it.
-    ``current_filtered_apart`` if ``i`` rings out after ``v``'s clean jumps (``dt``: the
-        sample period, see :func:`~observer.estimation.intersample.find_switching`)."""
+    """``current_filtered_apart`` if ``i`` rings out after ``v``'s clean jumps (``dt``: the
+    sample period, see :func:`~observer.estimation.intersample.find_switching`)."""
     sw = find_switching(v, dt)
     if not sw.switched:
         return None
