@@ -348,7 +348,7 @@ def folded_finding(channel: str, result: Linearity | None) -> ChainFinding | Non
         channel,
         "voltage_folded",
         f"measurement chain: {channel}'s samples follow a curve of the voltage "
-        f"({result.curve_v:.2g} V rms, {100 * result.curve_v / result.largest_v:.2g} % of the "
+        f"({result.curve_v:.2g} V rms, {100 * result.size:.2g} % of the "
         f"largest, explains {100 * result.share:.0f} % of the slow error of the winding's "
         "equation): a converter's pulses sampled in step with the ADC, folded onto zero "
         "frequency, read as a gain and a curve that no model of the samples takes out; the "

@@ -109,9 +109,14 @@ class Linearity:
     seconds: float
 
     @property
+    def size(self) -> float:
+        """The curve as a share of the largest voltage (0 where there is none)."""
+        return self.curve_v / self.largest_v if self.largest_v > 0 else 0.0
+
+    @property
     def linear(self) -> bool:
         """False when the reading carries a static curve that is not the sensor's."""
-        size = self.curve_v / self.largest_v if self.largest_v > 0 else 0.0
+        size = self.size
         return not ((self.share >= CURVE_SHARE and size >= CURVE_SIZE) or size >= CURVE_ALONE)
 
     def to_dict(self) -> dict[str, float | bool]:
@@ -139,7 +144,7 @@ def nonlinear_note(result: Linearity | None, circuit: str) -> str:
         return ""
     return (
         f"the {circuit} voltage's samples follow a curve of the voltage, not the voltage: "
-        f"{result.curve_v:.2g} V rms ({100 * result.curve_v / result.largest_v:.2g} % of the "
+        f"{result.curve_v:.2g} V rms ({100 * result.size:.2g} % of the "
         f"largest) explains {100 * result.share:.0f} % of the slow error of the winding's "
         "equation. A converter's pulses sampled in step with the ADC fold onto zero "
         "frequency and read as a gain and curve that no model of the samples can take out: "

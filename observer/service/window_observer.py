@@ -71,7 +71,7 @@ from observer.estimation import (
     estimate_field,
     field_search_range,
 )
-from observer.estimation.estimate import not_described, simex_noise
+from observer.estimation.estimate import not_described, simex_noise, with_linearity
 from observer.estimation.filter_id import (
     IDENTIFIED_WINDINGS,
     FilterFit,
@@ -86,7 +86,6 @@ from observer.estimation.linearity import (
     applies_to,
     field_note,
     made_by_a_bridge,
-    nonlinear_note,
 )
 from observer.estimation.motor import MotorParameters
 from observer.estimation.result import kphi
@@ -606,7 +605,7 @@ class SlidingWindowObserver:
                 "armature voltage reading over the last %.0f s: %s (a curve of %.2g V rms, "
                 "%.2g %% of the largest voltage, explains %.0f %% of the slow equation error)%s",
                 result.seconds, "linear" if result.linear else "NOT linear", result.curve_v,
-                100 * result.curve_v / result.largest_v, 100 * result.share,
+                100 * result.size, 100 * result.share,
                 "" if result.linear else "; its windows are held",
             )  # fmt: skip
         self.voltage_linearity = result
@@ -625,8 +624,7 @@ class SlidingWindowObserver:
         if result is None or result.linear or not applies_to(est.intersample):
             return est
         if circuit == "armature":
-            est = dataclasses.replace(est, voltage_linearity=result.to_dict())
-            return not_described(est, nonlinear_note(result, "armature"))
+            return with_linearity(est, result)
         return not_described(est, field_note(result, window["vf"], period_s))
 
     def _armature_measured(self, circuit: str, est: CircuitEstimate) -> bool:
