@@ -15,9 +15,15 @@ false: the values are then not to be used).
 Drives: ``thyristor`` is the dual 6-pulse bridge on 50 Hz with the single-phase field bridge
 (the ``realistic`` preset), ``chopper`` the 4-quadrant H-bridge at 2 kHz with a field chopper.
 
+``--variants`` changes the drive or the chain beyond the named front ends, to check the
+estimator on chains it was not tuned on (:data:`VARIANTS`: 60 Hz mains, commutation overlap,
+other filter families and orders, a multiplexed ADC's skew, a 16-bit ADC).
+
     python -m bench.accuracy_rates --seeds 20 --out bench/accuracy_rates.jsonl   # the full run
     python -m bench.accuracy_rates --seeds 2                                     # a smoke run
     python -m bench.accuracy_rates --front-ends none,mixed,mixed-untold --motors p12,industrial-440v
+    python -m bench.accuracy_rates --drives thyristor --front-ends butter2-untold \
+        --variants 60hz,overlap,bessel4,butter4-v,skew,16bit --motors p12,industrial-440v
 
 Results are appended to ``--out`` (JSON lines) as they come; a rerun skips the cases already
 there, so a long run can be stopped and resumed.
@@ -64,6 +70,64 @@ FRONT_ENDS: dict[str, tuple[str, str, bool]] = {
 }
 
 
+def _mains_60hz(drive: Any, rate: float) -> Any:
+    return drive.replace(converter=dataclasses.replace(drive.converter, mains_hz=60.0))
+
+
+def _overlap(drive: Any, rate: float) -> Any:
+    return drive.replace(converter=dataclasses.replace(drive.converter, source_inductance_h=2e-4))
+
+
+def _filters(voltage: str, current: str) -> Any:
+    def change(drive: Any, rate: float) -> Any:
+        from observer.config import parse_filter
+        from observer.simulation.chain import CHANNELS, apply_per_channel
+
+        changes = {ch: parse_filter(voltage if ch in ("va", "vf") else current) for ch in CHANNELS}
+        return drive.replace(chain=apply_per_channel(drive.chain, changes))
+
+    return change
+
+
+def _skew(drive: Any, rate: float) -> Any:
+    from observer.simulation.chain import apply_per_channel
+
+    # one ADC multiplexed over the channels: each sampled a quarter period after the last
+    delays = {"ia": 0.25, "if": 0.5, "omega": 0.75}
+    changes = {ch: {"delay_s": share / rate} for ch, share in delays.items()}
+    return drive.replace(chain=apply_per_channel(drive.chain, changes))
+
+
+def _adc_bits(bits: int) -> Any:
+    def change(drive: Any, rate: float) -> Any:
+        from observer.simulation.chain import apply_per_channel
+
+        return drive.replace(chain=apply_per_channel(drive.chain, {"*": {"bits": bits}}))
+
+    return change
+
+
+#: Variant -> (what it changes, ``f(drive, sample_rate_hz) -> drive``), applied after the front
+#: end (a variant that sets filters replaces its filters). ``standard``: nothing.
+VARIANTS: dict[str, tuple[str, Any]] = {
+    "standard": ("as the front end says", lambda drive, rate: drive),
+    "60hz": ("60 Hz mains", _mains_60hz),
+    "overlap": ("commutation overlap, 0.2 mH per phase", _overlap),
+    "bessel4": ("4th-order Bessel at fs/5 on every channel",
+                _filters("bessel4@fs/5", "bessel4@fs/5")),
+    "butter4-v": ("4th-order Butterworth at fs/3 on the voltages, 2nd at fs/4 on the rest",
+                  _filters("butter4@fs/3", "butter2@fs/4")),
+    "skew": ("one multiplexed ADC: ia, if, omega 1/4, 1/2, 3/4 of a period after the voltages",
+             _skew),
+    "16bit": ("16-bit ADC on every channel", _adc_bits(16)),
+}  # fmt: skip
+
+
+def variant_of(job: dict[str, Any]) -> str:
+    """A case's variant (rows written before there were several: ``standard``)."""
+    return str(job.get("variant", "standard"))
+
+
 def front_end_of(job: dict[str, Any]) -> str:
     """A case's front end (rows written before there were several: ``butter2``)."""
     return str(job.get("front_end", "butter2"))
@@ -84,9 +148,11 @@ def carrier_of(job: dict[str, Any]) -> float | None:
 def drive_label(job: dict[str, Any]) -> str:
     """The drive's name in the table, with a chopper's carrier where it is not the default."""
     carrier = carrier_of(job)
-    if carrier is None or carrier == DEFAULT_CARRIER_HZ:
-        return str(job["drive"])
-    return f"{job['drive']} {carrier / 1000:g} kHz carrier"
+    label = str(job["drive"])
+    if carrier is not None and carrier != DEFAULT_CARRIER_HZ:
+        label += f" {carrier / 1000:g} kHz carrier"
+    variant = variant_of(job)
+    return label if variant == "standard" else f"{label}, {variant}"
 
 
 def front_end_drive(drive: Any, front_end: str) -> Any:
@@ -122,6 +188,7 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     carrier = carrier_of(job)
     if carrier is not None and carrier != DEFAULT_CARRIER_HZ:
         drive = drive.replace(converter=dataclasses.replace(drive.converter, switching_hz=carrier))
+    drive = VARIANTS[variant_of(job)][1](drive, float(job["rate"]))
     t0 = time.perf_counter()
     rec = simulate(
         motor, duration_s=job["duration"], sample_rate_hz=job["rate"], noise=job["noise"],
@@ -162,12 +229,14 @@ def jobs(args: argparse.Namespace) -> list[dict[str, Any]]:
             "duration": args.duration,
             "noise": args.noise,
             **({"carrier_hz": carrier} if carrier is not None else {}),
+            **({"variant": variant} if variant != "standard" else {}),
         }  # fmt: skip
         for motor in args.motors
         for front_end in args.front_ends
         for rate in args.rates
         for drive in args.drives
         for carrier in (args.carriers if drive == "chopper" else [None])
+        for variant in getattr(args, "variants", ["standard"])
         for seed in range(args.seeds)
     ]
 
@@ -175,7 +244,7 @@ def jobs(args: argparse.Namespace) -> list[dict[str, Any]]:
 def _key(job: dict[str, Any]) -> tuple[Any, ...]:
     return (
         job["motor"], front_end_of(job), job["rate"], job["drive"], carrier_of(job),
-        job["seed"], job["duration"], job["noise"],
+        variant_of(job), job["seed"], job["duration"], job["noise"],
     )  # fmt: skip
 
 
@@ -239,6 +308,12 @@ def main(argv: list[str] | None = None) -> int:
         default=str(DEFAULT_CARRIER_HZ), metavar="HZ,...",
         help="the chopper's PWM carriers (Hz; its pulses at twice each)",
     )  # fmt: skip
+    parser.add_argument(
+        "--variants", type=lambda s: s.split(","), default="standard", metavar="NAME,...",
+        help="changes of the drive or chain beyond the front end: " + "; ".join(
+            f"{k}: {what}" for k, (what, _) in VARIANTS.items()
+        ),
+    )  # fmt: skip
     parser.add_argument("--duration", type=float, default=30.0, metavar="S", help="length (s)")
     parser.add_argument("--noise", type=float, default=0.002, metavar="FRACTION",
                         help="sensor noise, fraction of each channel's rated value")  # fmt: skip
@@ -254,9 +329,11 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [d for d in args.drives if d not in DRIVES]
     unknown += [f for f in args.front_ends if f not in FRONT_ENDS]
     unknown += [m for m in args.motors if m not in MOTORS]
+    unknown += [v for v in args.variants if v not in VARIANTS]
     if unknown or args.seeds < 1 or args.workers < 1 or not all(r > 0 for r in args.rates):
         parser.error(
             f"--drives from {', '.join(DRIVES)}, --front-ends from {', '.join(FRONT_ENDS)}, "
+            f"--variants from {', '.join(VARIANTS)}, "
             f"--motors from {', '.join(sorted(MOTORS))}; --seeds, --workers, --rates > 0"
         )
 

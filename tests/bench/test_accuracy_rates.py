@@ -92,3 +92,37 @@ def test_jobs_and_bad_arguments(capsys):
         main(["--drives", "magic", "--no-progress"])
     assert exc.value.code == 2
     assert "--drives" in capsys.readouterr().err
+
+
+def test_variants_change_the_drive_beyond_the_front_end():
+    """Each variant changes what it names, on top of the front end; rows carry it and the
+    table gives it its own row; an unknown one is a usage error."""
+    import argparse
+
+    from bench.accuracy_rates import VARIANTS
+
+    base = front_end_drive(drive_spec("thyristor"), "butter2-untold")
+    changed = {name: change(base, 5000.0) for name, (_, change) in VARIANTS.items()}
+    assert changed["standard"] == base
+    assert changed["60hz"].converter.mains_hz == 60.0
+    assert changed["overlap"].converter.source_inductance_h > 0
+    filters = {name: ch.filter_text() for name, ch in changed["butter4-v"].chain.items()}
+    assert filters["va"] == filters["vf"] == "butter4@fs/3" and filters["ia"] == "butter2@fs/4"
+    assert {ch.filter_text() for _, ch in changed["bessel4"].chain.items()} == {"bessel4@fs/5"}
+    delays = {name: ch.delay_s for name, ch in changed["skew"].chain.items()}
+    assert delays["va"] == delays["vf"] == 0.0
+    assert delays["ia"] < delays["if"] < delays["omega"] < 1 / 5000.0
+    assert {ch.bits for _, ch in changed["16bit"].chain.items()} == {16}
+    assert {ch.bits for _, ch in base.chain.items()} == {12}
+
+    args = argparse.Namespace(motors=["p12"], front_ends=["butter2-untold"], rates=[2e3],
+                              drives=["thyristor"], seeds=2, duration=30.0, noise=0.002,
+                              carriers=[2e3], variants=["standard", "skew"])  # fmt: skip
+    todo = jobs(args)
+    assert [j.get("variant") for j in todo] == [None, None, "skew", "skew"]
+    rows = [_row(2000.0, "thyristor", 0, 1.0, True), {**_row(2000.0, "thyristor", 0, 1.0, True),
+                                                       "variant": "skew"}]  # fmt: skip
+    assert "| thyristor, skew | Rf |" in table(rows)
+    with pytest.raises(SystemExit) as exc:
+        main(["--variants", "warp", "--no-progress"])
+    assert exc.value.code == 2
