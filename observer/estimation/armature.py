@@ -37,6 +37,7 @@ from observer.estimation.stages import (
     eiv_stage,
     guard_stage,
     jump_stage,
+    operating_point_stage,
     search_and_polish,
     specification_stage,
     std_stage,
@@ -133,6 +134,7 @@ def estimate_armature(
     voltage_alias: float | None = None,
     identified_filter: str | None = None,
     notch_aliased: bool = True,
+    split_by_voltage: bool = False,
 ) -> CircuitEstimate:
     """Estimate ``(Ra, La, K)`` of the armature from ``va, ia`` and measured ``if, omega``.
 
@@ -169,6 +171,10 @@ def estimate_armature(
         estimate again without the lines the current does not answer as the estimated
         winding would (aliases of the pulses, :mod:`observer.estimation.lines`): their
         bands removed from ``va`` and ``ia`` alike.
+    split_by_voltage : bool
+        Add the model error that depends on the operating point (the fits over the low- and
+        high-voltage halves, :func:`~observer.estimation.stages.operating_point_stage`): for
+        a whole recording.
     Other parameters
         As for :func:`estimate_field`.
     """
@@ -180,6 +186,7 @@ def estimate_armature(
         fit_shift=fit_shift, shift=shift, fit_lag=fit_lag, lag=lag, front_ends=front_ends,
         settled_rms=settled_rms, mismatch=mismatch, fit_speed=fit_speed,
         voltage_alias=voltage_alias, identified_filter=identified_filter,
+        split_by_voltage=split_by_voltage,
     )  # fmt: skip
     problem = armature_problem(
         va, ia, i_f, omega, dt, emf_constant=emf_constant, intersample=intersample,
@@ -227,6 +234,8 @@ def estimate_armature(
     else:
         eiv = EivCorrection(fit.point, 0.0, np.zeros(3))
     spec = specification_stage(problem, fit, bounds) if polish else None
+    if spec is not None and split_by_voltage:
+        spec = operating_point_stage(problem, fit, bounds, spec)
     jump = jump_stage(problem, fit) if polish else None
     std = std_stage(problem, fit, eiv, spec, jump)
     point = corrected_point(eiv.point, jump)

@@ -85,6 +85,8 @@ def estimate_recording(
         schedule=cfg.schedule,
         w=cfg.inertia,
         polish=cfg.polish,
+        # The model error that depends on the operating point, which a recording spans.
+        split_by_voltage=True,
     )
     for circuit in circuits:
         if circuit not in CIRCUIT_CHANNELS:

@@ -25,6 +25,7 @@ from observer.estimation.stages import (
     SwarmSettings,
     eiv_stage,
     guard_stage,
+    operating_point_stage,
     search_and_polish,
     specification_stage,
     std_stage,
@@ -59,6 +60,7 @@ def estimate_field(
     mismatch: float | None = None,
     voltage_alias: float | None = None,
     identified_filter: str | None = None,
+    split_by_voltage: bool = False,
 ) -> CircuitEstimate:
     """Estimate ``(Rf, Lf)`` of the field winding from ``vf`` (V) and ``if`` (A).
 
@@ -105,6 +107,10 @@ def estimate_field(
         (:attr:`~observer.estimation.filter_id.FilterFit.best`), through which the voltage's
         jumps are put back between its samples (:mod:`~observer.estimation.dealias`; a
         configured filter is used so without it).
+    split_by_voltage : bool
+        Add the model error that depends on the operating point (the fits over the low- and
+        high-voltage halves, :func:`~observer.estimation.stages.operating_point_stage`): for
+        a whole recording.
     """
     vf = kernel_array(vf)
     i_f = kernel_array(i_f)
@@ -140,6 +146,8 @@ def estimate_field(
     else:
         eiv = EivCorrection(fit.point, 0.0, np.zeros(3))
     spec = specification_stage(problem, fit, bounds) if polish else None
+    if spec is not None and split_by_voltage:
+        spec = operating_point_stage(problem, fit, bounds, spec)
     std = std_stage(problem, fit, eiv, spec)
     point = eiv.point
     coverage = problem.segments.covered / n

@@ -154,7 +154,10 @@ def test_swapped_field_and_armature_currents_leave_a_large_residual(p12):
 
 def test_an_armature_time_constant_of_seconds_points_at_the_time_unit(p12):
     t, s, dt = p12
-    slow = _rec(t * 100, s)  # t in units of 10 ms: tau_a 0.6 s, 20 Hz
+    # t in milliseconds: tau_a 6 s, 2 Hz. (In units of 10 ms, tau_a 0.6 s: the fit's L is 8 %
+    # off and the halves of the recording disagree by as much, so tau is not known well
+    # enough to say it is beyond an armature's.)
+    slow = _rec(t * 1000, s)
     res = estimate_recording(slow, ("armature",))
     idents = {c: identify(e, LIMITS[c]) for c, e in res.items()}
     findings = check_estimates(res, idents, s)
