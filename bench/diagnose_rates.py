@@ -32,6 +32,16 @@ at each of ``--rates``:
 
     python bench/diagnose_rates.py --drive realistic --seeds 5 --workers 1 \
         --out bench/diagnose_converter.jsonl --table OUT.md
+
+``--variants`` (with ``--drive realistic``) runs the cases again on chains nothing was tuned on
+(:data:`bench.accuracy_rates.VARIANTS`: 60 Hz mains, commutation overlap, 4th-order Bessel
+filters, 4th-order voltage filters beside 2nd-order currents, a multiplexed ADC, 16 bits).
+Where a variant sets the channels apart (:data:`APART`), a healthy motor's right answer is the
+chain's (a chain finding, no motor effect):
+
+    python bench/diagnose_rates.py --drive realistic --seeds 1 --workers 2 --cases \
+        "clean p12;clean industrial-440v;brush_drop 1 V;thermal_drift ~2 % rise;sensor_offset 1 %" \
+        --variants 60hz,overlap,bessel4,butter4-v,16bit,skew --out bench/diagnose_variants.jsonl
 """
 
 from __future__ import annotations
@@ -43,6 +53,7 @@ import multiprocessing
 import statistics
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -111,6 +122,11 @@ CONVERTER_CASES: dict[str, tuple[str, str, dict[str, float] | None, str]] = {
 }
 
 
+#: Variants (:data:`bench.accuracy_rates.VARIANTS`) that set the voltage and current channels
+#: apart: a healthy motor is right with a chain finding and no motor effect.
+APART = ("butter4-v", "skew")
+
+
 def converter_drive(variant: str) -> Any:
     """The realistic preset's drive with the measurement chain of ``variant``."""
     from observer.simulation.chain import ChannelChain, MeasurementChain
@@ -131,13 +147,17 @@ def converter_drive(variant: str) -> Any:
 
 
 def run_converter_case(job: dict[str, Any]) -> dict[str, Any]:
+    from bench.accuracy_rates import VARIANTS
     from observer.diagnosis.diagnose import diagnose
     from observer.diagnosis.effects import thermal_rise
     from observer.estimation.motor import MOTORS
     from observer.simulation.simulate import simulate
 
     kind, motor, effects, variant = CONVERTER_CASES[job["case"]]
-    drive = converter_drive(variant)
+    other = job.get("drive_variant", "standard")
+    drive = VARIANTS[other][1](converter_drive(variant), float(job["rate"]))
+    if kind == "clean" and other in APART:
+        kind = "chain"
     rec = simulate(
         MOTORS[motor], duration_s=job["duration"], sample_rate_hz=job["rate"],
         seed=job["seed"], effects=effects, drive=drive, drive_name="realistic",
@@ -170,19 +190,25 @@ def run_converter_case(job: dict[str, Any]) -> dict[str, Any]:
 
 
 def converter_jobs(
-    seeds: int, duration: float, rates: list[float], cases: list[str] | None = None
+    seeds: int,
+    duration: float,
+    rates: list[float],
+    cases: list[str] | None = None,
+    variants: Sequence[str] = ("standard",),
 ) -> list[dict[str, Any]]:
     out = []
     for name, (kind, _, _, _) in CONVERTER_CASES.items():
         if cases and name not in cases:
             continue
-        for rate in rates:
-            for configured in (False, True) if kind == "clean" else (False,):
-                for seed in range(seeds):
-                    out.append(
-                        {"case": name, "rate": rate, "configured": configured,
-                         "seed": 3000 + seed, "duration": duration}
-                    )  # fmt: skip
+        for variant in variants:
+            for rate in rates:
+                for configured in (False, True) if kind == "clean" else (False,):
+                    for seed in range(seeds):
+                        out.append(
+                            {"case": name, "rate": rate, "configured": configured,
+                             "seed": 3000 + seed, "duration": duration,
+                             **({"drive_variant": variant} if variant != "standard" else {})}
+                        )  # fmt: skip
     return out
 
 
@@ -199,11 +225,18 @@ def converter_table(results: list[dict[str, Any]]) -> str:
         "chain": "a chain finding, no motor effect",
         "outside": "`unexplained`",
     }
-    for name, (kind, *_rest) in CONVERTER_CASES.items():
-        for configured in (False, True):
-            rs = [r for r in results if r["case"] == name and r["configured"] == configured]
+    variants = sorted({_variant(r) for r in results}, key=lambda v: (v != "standard", v))
+    for name, (case_kind, *_rest) in CONVERTER_CASES.items():
+        for variant, configured in ((v, c) for v in variants for c in (False, True)):
+            rs = [
+                r
+                for r in results
+                if r["case"] == name and r["configured"] == configured and _variant(r) == variant
+            ]
             if not rs:
                 continue
+            kind = "chain" if case_kind == "clean" and variant in APART else case_kind
+            label = name if variant == "standard" else f"{name}, {variant}"
             cells = []
             for rate in rates:
                 at = [r for r in rs if r["rate"] == rate]
@@ -211,7 +244,7 @@ def converter_table(results: list[dict[str, Any]]) -> str:
                 cells.append(f"{ok}/{len(at)}" if at else "-")
             wrong = sorted({r["verdict"] for r in rs if not r["right"]})
             lines.append(
-                f"| {name} | {right_is[kind]} | {'yes' if configured else 'no'} | "
+                f"| {label} | {right_is[kind]} | {'yes' if configured else 'no'} | "
                 + " | ".join(cells)
                 + f" | {', '.join(wrong)} |"
             )
@@ -320,6 +353,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--cases", default=None, help="';'-separated subset of the converter-fed case names"
     )
+    parser.add_argument(
+        "--variants", default="standard",
+        help="with --drive realistic: chains beyond the cases' own (bench.accuracy_rates "
+        "--variants), comma-separated",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     if args.out is None:
         args.out = Path(
@@ -353,8 +391,9 @@ def _describe_case(result: dict[str, Any]) -> str:
 
 
 def _describe_converter_case(result: dict[str, Any]) -> str:
+    variant = _variant(result)
     return (
-        f"{result['case']} {result['rate']:g} Hz "
+        f"{result['case']}{'' if variant == 'standard' else ', ' + variant} {result['rate']:g} Hz "
         f"{'configured ' if result['configured'] else ''}seed {result['seed']}: "
         f"{result['verdict']} {result['chain']} {'right' if result['right'] else 'WRONG'}"
     )
@@ -386,16 +425,36 @@ def _run(
         args.table.write_text(text + "\n")
 
 
+def _variant(row: dict[str, Any]) -> str:
+    return str(row.get("drive_variant", "standard"))
+
+
 def converter_main(args: argparse.Namespace) -> int:
+    from bench.accuracy_rates import VARIANTS
+
     rates = [float(r) for r in args.rates.split(",")]
     cases = args.cases.split(";") if args.cases else None
-    todo = converter_jobs(args.seeds, args.duration, rates, cases)
+    variants = args.variants.split(",")
+    unknown = [c for c in cases or () if c not in CONVERTER_CASES]
+    unknown += [v for v in variants if v not in VARIANTS]
+    if unknown:
+        print(
+            f"diagnose_rates: unknown {', '.join(unknown)}; cases: {'; '.join(CONVERTER_CASES)}; "
+            f"variants: {', '.join(VARIANTS)}",
+            file=sys.stderr,
+        )
+        return 2
+    todo = converter_jobs(args.seeds, args.duration, rates, cases, variants)
     keys = ("case", "rate", "configured", "seed", "duration")
+
+    def key(row: dict[str, Any]) -> tuple[Any, ...]:
+        return (*(row[k] for k in keys), _variant(row))
+
     done: list[dict[str, Any]] = []
     if args.out.exists():
         done = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
-    seen = {tuple(r[k] for k in keys) for r in done}
-    todo = [j for j in todo if tuple(j[k] for k in keys) not in seen]
+    seen = {key(r) for r in done}
+    todo = [j for j in todo if key(j) not in seen]
     # Seed by seed, so that a partial run covers every case and rate.
     todo.sort(key=lambda j: (j["seed"], j["rate"]))
     _run(args, todo, done, run_converter_case, _describe_converter_case, converter_table)
@@ -403,4 +462,6 @@ def converter_main(args: argparse.Namespace) -> int:
 
 
 if __name__ == "__main__":
+    # Run as a script (``python bench/diagnose_rates.py``): the variants live in bench/.
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
     sys.exit(main())
