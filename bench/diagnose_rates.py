@@ -36,8 +36,8 @@ at each of ``--rates``:
 ``--variants`` (with ``--drive realistic``) runs the cases again on chains nothing was tuned on
 (:data:`bench.accuracy_rates.VARIANTS`: 60 Hz mains, commutation overlap, 4th-order Bessel
 filters, 4th-order voltage filters beside 2nd-order currents, a multiplexed ADC, 16 bits).
-Where a variant sets the channels apart (:data:`APART`), a healthy motor's right answer is the
-chain's (a chain finding, no motor effect):
+Where a variant sets the channels apart (:data:`APART`) and the chain is not configured, a
+healthy motor's right answer is the chain's (a chain finding, no motor effect):
 
     python bench/diagnose_rates.py --drive realistic --seeds 1 --workers 2 --cases \
         "clean p12;clean industrial-440v;brush_drop 1 V;thermal_drift ~2 % rise;sensor_offset 1 %" \
@@ -156,8 +156,8 @@ def run_converter_case(job: dict[str, Any]) -> dict[str, Any]:
     kind, motor, effects, variant = CONVERTER_CASES[job["case"]]
     other = job.get("drive_variant", "standard")
     drive = VARIANTS[other][1](converter_drive(variant), float(job["rate"]))
-    if kind == "clean" and other in APART:
-        kind = "chain"
+    if kind == "clean" and other in APART and not job["configured"]:
+        kind = "chain"  # told, the chain is modelled and nothing is left to report
     rec = simulate(
         MOTORS[motor], duration_s=job["duration"], sample_rate_hz=job["rate"],
         seed=job["seed"], effects=effects, drive=drive, drive_name="realistic",
@@ -235,7 +235,8 @@ def converter_table(results: list[dict[str, Any]]) -> str:
             ]
             if not rs:
                 continue
-            kind = "chain" if case_kind == "clean" and variant in APART else case_kind
+            apart = case_kind == "clean" and variant in APART and not configured
+            kind = "chain" if apart else case_kind
             label = name if variant == "standard" else f"{name}, {variant}"
             cells = []
             for rate in rates:

@@ -20,6 +20,8 @@ def test_variants_make_their_own_jobs_and_rows(capsys):
     assert "skew" in APART
     # a healthy motor behind channels set apart is right with the chain's answer
     assert "| clean p12, skew | a chain finding, no motor effect | no | 1/1 |" in text
+    # told, the chain is modelled: `none` is right again
+    assert "| clean p12, skew | `none` | yes |" in text
     assert "| clean p12 | `none` | no | 1/1 |" in text
     assert "| brush_drop 1 V, skew | the effect |" in text
     assert main(["--drive", "realistic", "--variants", "warp", "--cases", "clean p12"]) == 2
