@@ -42,9 +42,15 @@ class Case:
     seed: int
 
 
-def _drive(name: str):  # type: ignore[no-untyped-def]
-    """A drive of :mod:`bench.accuracy_rates`, or its thyristor drive behind another chain."""
-    from bench.accuracy_rates import drive_spec
+#: ``thyristor-`` and a variant of :data:`bench.accuracy_rates.VARIANTS`: the thyristor drive on
+#: 60 Hz mains, with commutation overlap, behind a multiplexed ADC, ...
+VARIANT_PREFIX = "thyristor-"
+
+
+def _drive(name: str, rate: float = 2000.0):  # type: ignore[no-untyped-def]
+    """A drive of :mod:`bench.accuracy_rates`, or its thyristor drive behind another chain
+    (``rate``: the sample rate, for variants that depend on it)."""
+    from bench.accuracy_rates import VARIANTS, drive_spec
     from observer.simulation.chain import ChannelChain, MeasurementChain
     from observer.simulation.converter import REALISTIC_CHANNEL
 
@@ -84,6 +90,9 @@ def _drive(name: str):  # type: ignore[no-untyped-def]
         for ch in ("ia", "if") if which == "currents" else ("va", "vf"):
             chain = chain.with_channel(ch, **change)
         return drive_spec("thyristor").replace(chain=chain)
+    variant = name.removeprefix(VARIANT_PREFIX)
+    if name.startswith(VARIANT_PREFIX) and variant in VARIANTS:
+        return VARIANTS[variant][1](drive_spec("thyristor"), rate)
     if name == "bare-voltages":
         chain = MeasurementChain.uniform(REALISTIC_CHANNEL)
         for ch in ("va", "vf"):
@@ -155,7 +164,7 @@ def run_case(
     from observer.estimation.filter_id import IDENTIFIED_WINDINGS, identify_voltage_filter
     from observer.estimation.frontend import winding_front_ends
 
-    drive = _drive(case.drive)
+    drive = _drive(case.drive, case.rate)
     if va_offset:
         drive = drive.replace(chain=drive.chain.with_channel("va", offset=va_offset))
     chain = drive.chain.to_config() if configured else None
@@ -274,7 +283,9 @@ def main(argv: list[str] | None = None) -> int:
         help="drives: realistic, no-filter, chopper, rc1-voltages, bare-voltages, and front "
         "ends not tuned on: rc1-currents, bessel4-currents, butter4-fs3-currents, "
         "bessel2-voltages, fs8-voltages, rc1-fs8-voltages; chopper-averaged-voltages (the "
-        "chopper with its voltages measured as means over each period)",
+        "chopper with its voltages measured as means over each period); thyristor-VARIANT "
+        "for a variant of bench.accuracy_rates (thyristor-60hz, thyristor-overlap, "
+        "thyristor-skew, thyristor-16bit, thyristor-bessel4, thyristor-butter4-v)",
     )  # fmt: skip
     parser.add_argument("--seeds", type=int, default=3, help="recordings per case")
     parser.add_argument("--duration", type=float, default=30.0, help="recording length (s)")
