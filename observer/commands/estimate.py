@@ -311,6 +311,23 @@ def _notes(
                 f"{c} voltage filter (front ends not configured): not identified "
                 f"({fit['reason']}); an RC at fs/4, the weakest in use, assumed"
             )
+    for c, values in report.items():
+        part = values.get("operating_point_std") or {}
+        # Named where it is most of the std (over a quarter of its variance).
+        named = [
+            f"{NAMES[(c, p)]} {100 * v / abs(values[p]):.2g} %"
+            for p, v in part.items()
+            if values.get(p) and v > 0.5 * values["std"].get(p, 0.0)
+        ]
+        if named:
+            lines.append(
+                f"{c}: the fits over the recording's low- and high-voltage halves disagree "
+                f"beyond their noise ({', '.join(named)} of the value as one sigma, in the std): "
+                "the reading's error depends on the operating point (a converter's pulses "
+                "folded through the front end onto zero frequency, a transducer's curve); "
+                "sample at a rate no harmonic of the pulses lands on, filter the voltage more "
+                "steeply, or measure it averaged over each period"
+            )
     arm = report.get("armature")
     if arm and "K" in arm:
         at = f" at the mean field current ({eng(arm['if_mean'], 'A')})" if "kphi" in arm else ""

@@ -37,6 +37,7 @@ from observer.estimation.stages import (
     eiv_stage,
     guard_stage,
     jump_stage,
+    operating_point_part,
     operating_point_stage,
     search_and_polish,
     specification_stage,
@@ -273,6 +274,7 @@ def estimate_armature(
         mismatch_size=std.get("mismatch_size", math.nan),
         mismatch_shift=std.get("mismatch_shift", math.nan),
         shared_std={p: std[f"shared_{p}"] for p in ("R", "L", "K") if f"shared_{p}" in std},
+        operating_point_std=operating_point_part(spec, ("R", "L", "K")),
         describes_window=not note,
         note=note,
     )

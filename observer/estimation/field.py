@@ -25,6 +25,7 @@ from observer.estimation.stages import (
     SwarmSettings,
     eiv_stage,
     guard_stage,
+    operating_point_part,
     operating_point_stage,
     search_and_polish,
     specification_stage,
@@ -173,6 +174,7 @@ def estimate_field(
         mismatch_size=std.get("mismatch_size", math.nan),
         mismatch_shift=std.get("mismatch_shift", math.nan),
         shared_std={p: std[f"shared_{p}"] for p in ("R", "L") if f"shared_{p}" in std},
+        operating_point_std=operating_point_part(spec, ("R", "L")),
         describes_window=not note,
         note=note,
     )

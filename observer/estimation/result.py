@@ -76,6 +76,10 @@ class CircuitEstimate:
         (:meth:`~observer.estimation.linearity.Linearity.to_dict`; a converter's pulses
         sampled in step with the ADC read as a curve). None: not tested (the field, whose
         voltage follows its current; a recording too short).
+    operating_point_std : dict
+        The part of ``std`` per parameter (same units) that the fits over the recording's low-
+        and high-voltage halves found (:func:`~observer.estimation.stages.operating_point_stage`:
+        a reading whose error depends on the operating point). Empty: not tested.
     """
 
     circuit: str
@@ -102,6 +106,7 @@ class CircuitEstimate:
     mismatch_shift: float = math.nan
     voltage_filter: Mapping[str, object] | None = None
     voltage_linearity: Mapping[str, object] | None = None
+    operating_point_std: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def time_constant_s(self) -> float:
@@ -148,6 +153,8 @@ class CircuitEstimate:
             out["voltage_filter"] = dict(self.voltage_filter)
         if self.voltage_linearity is not None:
             out["voltage_linearity"] = dict(self.voltage_linearity)
+        if self.operating_point_std:
+            out["operating_point_std"] = dict(self.operating_point_std)
         out["iterations"] = self.pso.n_iterations
         out["evaluations"] = self.pso.n_evaluations
         out["search_range"] = {

@@ -576,10 +576,14 @@ class SpecificationTest:
     model_std : (3,) array
         One-sigma model error of ``R, L, K``: the part of the two fits'
         difference their noise does not explain (0 when it does).
+    operating_point_std : (3,) array or None
+        The part of ``model_std`` the fits over the low- and high-voltage halves found
+        (:func:`operating_point_stage`); None: not tested.
     """
 
     values: np.ndarray
     model_std: np.ndarray
+    operating_point_std: np.ndarray | None = None
 
 
 def specification_stage(
@@ -711,7 +715,19 @@ def operating_point_stage(
     model[:k] = np.sqrt(excess / 2.0)
     full = fit.point.values()
     model[:2] *= full[:2]
-    return dataclasses.replace(spec, model_std=np.hypot(spec.model_std, model))
+    return dataclasses.replace(
+        spec, model_std=np.hypot(spec.model_std, model), operating_point_std=model
+    )
+
+
+def operating_point_part(
+    spec: SpecificationTest | None, names: tuple[str, ...]
+) -> dict[str, float]:
+    """``{name: std}`` of :attr:`SpecificationTest.operating_point_std` for ``names`` (of
+    ``R, L, K`` in order); empty where it was not tested."""
+    if spec is None or spec.operating_point_std is None:
+        return {}
+    return {name: float(v) for name, v in zip(names, spec.operating_point_std, strict=False)}
 
 
 def _combined(*terms: float) -> float:

@@ -66,6 +66,35 @@ def test_estimate_json_contract_and_accuracy(p12_csv):
         if c["quality"][key] == "ok":
             assert abs(error / true) < tolerance[key], (circuit, key, c[key])
     assert out["armature"]["quality"]["R"] == out["armature"]["quality"]["K"] == "ok"
+    # A bridge made these voltages: the halves are not compared (its fold is put back).
+    assert "operating_point_std" not in out["armature"]
+
+
+def test_estimate_says_when_the_halves_of_a_recording_disagree(tmp_path):
+    """The 440 V motor behind a chopper at 2.5 kHz sampled at 2 kHz (its pulses' harmonics
+    fold through the filters): the fits over the low- and high-voltage halves differ beyond
+    their noise, and the table's notes say so with what to do."""
+    import dataclasses
+
+    from bench.accuracy_rates import drive_spec, front_end_drive
+    from observer.estimation.motor import MOTORS
+    from observer.recording import write_recording
+    from observer.simulation.simulate import simulate
+
+    drive = front_end_drive(drive_spec("chopper"), "butter2-untold")
+    drive = drive.replace(converter=dataclasses.replace(drive.converter, switching_hz=2500.0))
+    rec = simulate(
+        MOTORS["industrial-440v"], duration_s=15.0, sample_rate_hz=2000.0, seed=0,
+        drive=drive, drive_name="chopper",
+    )  # fmt: skip
+    path = tmp_path / "chopper.mcap"
+    write_recording(rec, path)
+    res = run("estimate", str(path), cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert "armature: the fits over the recording's low- and high-voltage halves" in res.stdout
+    assert "averaged over each period" in res.stdout
+    data = json.loads(run("estimate", str(path), "--json", cwd=tmp_path).stdout)
+    assert data["armature"]["operating_point_std"]["K"] > 0
 
 
 def test_estimate_table_shows_truth_from_metadata(tmp_path):

@@ -770,6 +770,9 @@ def test_the_halves_of_the_operating_range_cover_a_curved_reading(seed: int):
     assert abs(plain.inductance_h - 50.0) > 2.5 * plain.std["L"]
     assert abs(split.inductance_h - 50.0) < 2.5 * split.std["L"]
     assert abs(split.resistance_ohm - 185.0) < 2.5 * split.std["R"]
+    # the part the halves found is reported beside the std
+    assert plain.operating_point_std == {}
+    assert 0 < split.operating_point_std["L"] <= split.std["L"]
 
 
 def test_a_straight_reading_splits_into_agreeing_halves():
