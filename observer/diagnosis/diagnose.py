@@ -524,14 +524,23 @@ def select_effects(
             evid[name] = ev
             pairs.append(name)
             bar.update(1)
-    verdict = NONE
-    if good:
-        verdict = good[0]
-        models, fits = cands.models, cands.fits
-        best_pairs = [p for p in pairs if accepted(evid[p]) and not _degenerate(models[p], fits[p])]
-        if best_pairs:
-            verdict = max(best_pairs, key=lambda p: evid[p]["holdout_gain_vs_plain"])
-    return Selection(evid, good, pairs, verdict)
+    return Selection(evid, good, pairs, _best_of(evid, good, pairs, cands))
+
+
+def _best_of(
+    evid: dict[str, dict[str, Any]], good: Sequence[str], pairs: Sequence[str], cands: Candidates
+) -> str:
+    """The verdict among the accepted singles ``good`` (best first) and the ``pairs`` fitted
+    of them: the pair with the most held-out gain over the plain model that is accepted and
+    not degenerate, else the best single, else ``none``."""
+    if not good:
+        return NONE
+    best_pairs = [
+        p for p in pairs if accepted(evid[p]) and not _degenerate(cands.models[p], cands.fits[p])
+    ]
+    if best_pairs:
+        return max(best_pairs, key=lambda p: evid[p]["holdout_gain_vs_plain"])
+    return good[0]
 
 
 def _fit_pair(
@@ -623,16 +632,9 @@ def decide_verdict(
     periodic = _periodic(rec, baseline.residuals, floors)
     structure = tuple(sorted(located.structure + tuple(periodic), key=lambda s_: -s_.z))
 
-    def with_finding(kind: str) -> set[str]:
-        return {
-            c
-            for c, v in VOLTAGE_CHANNEL.items()
-            if any(f.kind == kind and f.channel == v for f in chain)
-        }
-
-    unfiltered = with_finding("no_anti_aliasing")
+    unfiltered = _circuits_with(chain, "no_anti_aliasing")
     # A winding whose voltage reads a curve of the voltage: nothing on it is the motor's.
-    curved = with_finding("voltage_folded")
+    curved = _circuits_with(chain, "voltage_folded")
     periodic = [s_ for s_ in periodic if _circuit(s_) not in curved]
     words = [s_.description for s_ in periodic]
     strong = _strong(structure)
@@ -761,31 +763,30 @@ def decide_verdict(
 CONFOUNDED_WITH_SKEW = ("eddy_currents",)
 
 
+def _circuits_with(chain: Sequence[ChainFinding], kind: str) -> set[str]:
+    """The circuits whose voltage channel has a chain finding of ``kind``."""
+    return {
+        c
+        for c, v in VOLTAGE_CHANNEL.items()
+        if any(f.kind == kind and f.channel == v for f in chain)
+    }
+
+
 def _confounded_with_chain(chain: Sequence[ChainFinding]) -> set[str]:
     """The library's effects the chain findings leave no room to name
     (:data:`CONFOUNDED_WITH_SKEW` on a winding whose channels read skewed)."""
-    skewed = {
-        c
-        for c, v in VOLTAGE_CHANNEL.items()
-        if any(f.kind == "channel_skew" and f.channel == v for f in chain)
-    }
+    skewed = _circuits_with(chain, "channel_skew")
     return {n for n in CONFOUNDED_WITH_SKEW if set(LIBRARY[n].circuits) & skewed}
 
 
 def _best_without(selection: Selection, cands: Candidates, names: set[str]) -> str:
     """The verdict :func:`select_effects` would give without the effects ``names``."""
-    evid = selection.evidence
-    good = [n for n in selection.accepted_singles if n not in names]
-    pairs = [
-        p
-        for p in selection.pairs
-        if not set(p.split("+")) & names
-        and accepted(evid[p])
-        and not _degenerate(cands.models[p], cands.fits[p])
-    ]
-    if pairs:
-        return max(pairs, key=lambda p: evid[p]["holdout_gain_vs_plain"])
-    return good[0] if good else NONE
+    return _best_of(
+        selection.evidence,
+        [n for n in selection.accepted_singles if n not in names],
+        [p for p in selection.pairs if not set(p.split("+")) & names],
+        cands,
+    )
 
 
 def _set_aside_note(named: str, confounded: set[str]) -> str:

@@ -586,6 +586,32 @@ class SpecificationTest:
     operating_point_std: np.ndarray | None = None
 
 
+def _weighted_refit(
+    problem: WindingProblem,
+    fit: PolishedFit,
+    bounds: SearchRange,
+    weigh: Callable[[np.ndarray], np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The fit again with the residual weighted by the linear map ``weigh``: ``theta``, the
+    weighted residual and Jacobian there.
+
+    The weighting is linear: at the full fit the weighted residual and its Jacobian are the
+    full fit's, weighted, and the refit moves theta by about the model error, too little to
+    change the sensitivities: three steps with that Jacobian (the chord method, one residual
+    each) land within a few percent of a std of the refit with fresh Jacobians (7 residuals,
+    not 25).
+    """
+    start = (
+        weigh(fit.point.residual),
+        np.column_stack([weigh(np.ascontiguousarray(c)) for c in fit.jacobian.T]),
+    )
+    lower, upper = problem.limits(bounds.log_bounds())
+    return levenberg_marquardt(
+        lambda theta: weigh(problem.residual(theta)), fit.theta.copy(), lower=lower,
+        upper=upper, max_iterations=3, start=start, fixed_jacobian=True,
+    )  # fmt: skip
+
+
 def specification_stage(
     problem: WindingProblem, fit: PolishedFit, bounds: SearchRange
 ) -> SpecificationTest:
@@ -606,20 +632,7 @@ def specification_stage(
         ik.lowpass_segments(x, lengths, b, a, out)
         return out
 
-    # The weighting is linear: at the full fit the weighted residual and its
-    # Jacobian are the full fit's, filtered, and the refit moves theta by about
-    # the model error, too little to change the sensitivities: three steps with
-    # that Jacobian (the chord method, one residual each) land within a few
-    # percent of a std of the refit with fresh Jacobians (7 residuals, not 25).
-    start = (
-        lowpass(fit.point.residual),
-        np.column_stack([lowpass(np.ascontiguousarray(c)) for c in fit.jacobian.T]),
-    )
-    lower, upper = problem.limits(bounds.log_bounds())
-    theta_lp, resid_lp, jac_lp = levenberg_marquardt(
-        lambda theta: lowpass(problem.residual(theta)), fit.theta.copy(), lower=lower,
-        upper=upper, max_iterations=3, start=start, fixed_jacobian=True,
-    )  # fmt: skip
+    theta_lp, resid_lp, jac_lp = _weighted_refit(problem, fit, bounds, lowpass)
     tau_samples = math.exp(fit.theta[1] - fit.theta[0]) / problem.dt
     std_full = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
     std_lp = crlb_std(jac_lp, resid_lp, tau_samples + 1.0 / SPEC_CUTOFF)
@@ -690,19 +703,14 @@ def operating_point_stage(
         return spec
     means = np.bincount(blocks, size) / np.bincount(blocks)
     high = means[blocks] > np.median(means)
-    lower, upper = problem.limits(bounds.log_bounds())
     tau_samples = math.exp(fit.theta[1] - fit.theta[0]) / problem.dt
     halves = []
     for mask in (~high, high):
         if mask.sum() < 2 * per_block:
             return spec
-        weight = mask.astype(np.float64)
-        theta, resid, jac = levenberg_marquardt(
-            lambda t, w=weight: problem.residual(t) * w, fit.theta.copy(), lower=lower,
-            upper=upper, max_iterations=3,
-            start=(fit.point.residual * weight, fit.jacobian * weight[:, None]),
-            fixed_jacobian=True,
-        )  # fmt: skip
+        theta, resid, jac = _weighted_refit(
+            problem, fit, bounds, functools.partial(np.multiply, mask.astype(np.float64))
+        )
         halves.append((theta, crlb_std(jac[mask], resid[mask], tau_samples)))
     (theta_a, std_a), (theta_b, std_b) = halves
     k = 2 + int(problem.fits_k)
