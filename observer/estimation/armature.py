@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from observer.estimation import dealias
-from observer.estimation.frontend import FrontEnd
+from observer.estimation.frontend import FrontEnd, voltage_filtered
 from observer.estimation.intersample import choose_model
 from observer.estimation.lines import aliased_lines, notch, settle_samples
 from observer.estimation.mechanics import smooth_speed
@@ -74,7 +74,7 @@ def armature_problem(
     i_f = kernel_array(i_f)
     omega = kernel_array(omega)
     check_signals(va=va, ia=ia, i_f=i_f, omega=omega)
-    model, switching = choose_model(va, intersample, dt)
+    model, switching = choose_model(va, intersample, dt, filtered=voltage_filtered(front_ends))
     # The EMF's speed as the shaft's equation explains it: the tachometer's noise, which the
     # drive's speed loop answers in va and ia, out of the regressor (:mod:`.mechanics`).
     speed = smooth_speed(omega, i_f, ia, dt).omega if fit_speed else omega

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from observer.estimation import dealias
-from observer.estimation.frontend import FrontEnd
+from observer.estimation.frontend import FrontEnd, voltage_filtered
 from observer.estimation.intersample import choose_model
 from observer.estimation.problem import coverage_note, make_problem, pwm_note
 from observer.estimation.ranges import SearchRange, check_signals, field_search_range, kernel_array
@@ -118,7 +118,7 @@ def estimate_field(
     n = check_signals(vf=vf, i_f=i_f)
     rng_ = np.random.default_rng(rng)
     bounds = search_range if search_range is not None else field_search_range(vf, i_f, dt)
-    model, switching = choose_model(vf, intersample, dt)
+    model, switching = choose_model(vf, intersample, dt, filtered=voltage_filtered(front_ends))
     problem = make_problem(
         vf, i_f, dt, model, switching=switching, fit_shift=fit_shift, shift=shift,
         front_ends=front_ends, mismatch=mismatch, voltage_alias=voltage_alias,

@@ -174,6 +174,12 @@ def winding_front_ends(chain: Any, winding: str) -> tuple[FrontEnd, FrontEnd] | 
     return fe_v, fe_i
 
 
+def voltage_filtered(front_ends: tuple[FrontEnd, FrontEnd] | None) -> bool:
+    """The configured voltage front end of ``(voltage, current)`` has an anti-aliasing
+    filter (False where the front ends are not configured)."""
+    return front_ends is not None and front_ends[0].filter != "none" and front_ends[0].order > 0
+
+
 def check_against_rate(fe: FrontEnd, sample_rate_hz: float, key: str) -> None:
     """Raise ValueError naming ``key`` if ``fe`` cannot hold at ``sample_rate_hz``."""
     cutoff = fe.cutoff_at(sample_rate_hz)

@@ -118,6 +118,66 @@ def test_a_filtered_bridge_voltage_has_no_clean_jump():
     assert choose_model(field)[0] == "smooth"
 
 
+def _filtered_samples(x_fine: np.ndarray, fine: int, kind: str, order: int, cutoff_hz: float):
+    """``x_fine`` (``fine`` points a sample period) through an analog-like filter, sampled."""
+    import scipy.signal
+
+    kw = {"norm": "mag"} if kind == "bessel" else {}
+    b, a = getattr(scipy.signal, kind)(order, cutoff_hz, fs=FS * fine, **kw)
+    y = scipy.signal.lfilter(b, a, x_fine, zi=scipy.signal.lfilter_zi(b, a) * x_fine[0])[0]
+    noise = np.random.default_rng(0).normal(0.0, 0.3, x_fine.size // fine)
+    return (y[::fine] + noise)[100:]
+
+
+def test_a_filtered_field_bridge_locked_to_the_samples_has_no_clean_jump_at_any_angle():
+    """A single-phase field bridge on 50 Hz mains sampled at 2 kHz fires at the same place
+    between samples in every pulse: behind a 2nd-order Butterworth at fs/4, at some firing
+    angles one interval of each filtered jump's run passed every test of a clean jump, and
+    the daemon's first windows (a steady field) decided ``switched``: Rf 1.5-3 % off at 5 of
+    its std for the rest of the recording."""
+    fine = 40
+    t = np.arange(2100 * fine) / (FS * fine)
+    read = [
+        find_switching(
+            _filtered_samples(field_bridge_voltage(t, alpha), fine, "butter", 2, FS / 4), 1 / FS
+        ).switched
+        for alpha in np.arange(10.0, 170.0, 9.0 / 4)  # a sample period is 9 degrees of mains
+    ]
+    assert not any(read)
+    bare = find_switching(field_bridge_voltage(t[::fine], 50.0) + 0.3 * np.sin(t[::fine]), 1 / FS)
+    assert bare.switched
+
+
+def test_a_configured_voltage_filter_is_never_read_as_switched():
+    """Where the voltage's filter is configured, a jump cannot be clean, whatever the samples
+    look like: a 6-pulse bridge at a steady firing angle behind a 2nd-order Butterworth at
+    fs/3 reads clean jumps at some angles (its 6.7 samples a pulse take three places)."""
+    fine = 40
+    t = np.arange(2100 * fine) / (FS * fine)
+    alphas = np.arange(10.0, 170.0, 9.0 / 4)
+    voltages = [_filtered_samples(bridge_voltage(t, a), fine, "butter", 2, FS / 3) for a in alphas]
+    assert any(find_switching(v, 1 / FS).switched for v in voltages)
+    assert {choose_model(v, dt=1 / FS, filtered=True)[0] for v in voltages} == {"smooth"}
+
+
+def test_two_clean_jumps_around_a_short_segment_stay_clean():
+    """Discontinuous conduction, unfiltered: the current dies out, the terminals show the
+    back-EMF for a few samples, and the next firing jumps. The predictors cannot see across
+    so short a segment and flag a run of intervals; its ends are two clean jumps."""
+    fs = 10000.0
+    t = np.arange(10000) / fs
+    v = bridge_voltage(t, 75.0)
+    theta = 2 * np.pi * MAINS * t
+    # The current stops 3 samples before each firing (a pulse is 33 samples at 10 kHz).
+    phase = np.mod(theta + np.pi / 6 - np.radians(75.0), np.pi / 3) / (np.pi / 3)
+    v = np.where(phase > 1.0 - 3.5 / 33.3, -21.0, v) + np.random.default_rng(2).normal(
+        0, 0.4, t.size
+    )
+    sw = find_switching(v, 1 / fs)
+    assert sw.switched
+    assert sw.clean_share > 1.5 * 300 / fs  # both jumps of most pulses
+
+
 def test_the_untold_alias_factor_is_that_of_an_rc_at_a_quarter_of_the_rate():
     """Not configured, the weakest filter in use is assumed: the constant is its factor (at
     any rate: the cutoff scales with it); an unfiltered jump is a uniform place's std."""
