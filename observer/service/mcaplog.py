@@ -136,6 +136,12 @@ _CIRCUIT_SCHEMA: dict[str, Any] = {
             "description": "Tracked relative rate of change of R per minute.",
             "additionalProperties": _PARAM,
         },
+        "std_scale": {
+            "type": "object",
+            "description": "The factor on the windows' own variances the tracker learned from "
+            "how far windows a window apart scatter (1: as the windows say).",
+            "additionalProperties": _PARAM,
+        },
     },
 }
 _WINDING_TEMPERATURE = {

@@ -384,12 +384,16 @@ class TrackedParameter:
         (no evidence yet).
     rate_per_min : float or None
         Relative rate of change per minute (resistances), else None.
+    std_scale : float
+        The factor the windows' own variances are taken at (:meth:`MotorTracker._calibrate`:
+        1 until enough windows have shown how far they scatter).
     """
 
     value: float | None
     std: float | None
     status: str
     rate_per_min: float | None = None
+    std_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -433,6 +437,22 @@ CHANGE_HORIZON_S = 10.0
 ONSET_MARGIN_HOPS = 3
 
 
+#: Triples of window fits a window apart (no sample in common) that calibrate the windows'
+#: stds: their second difference squared over the variance their own (unshared) parts
+#: give it, the latest this many. Consecutive triples share most samples: 300 (30 s at a
+#: 0.1 s hop) hold about 30 independent ones, whose median is known to within ~25 %.
+CALIBRATION_PAIRS = 300
+
+#: Before this many pairs the windows' variances are taken as they say.
+CALIBRATION_MIN_PAIRS = 50
+
+#: The calibration's range (a factor on the variance of a window's own error).
+CALIBRATION_RANGE = (0.01, 100.0)
+
+#: Median of a chi-square variable of one degree of freedom (honest pairs' ratios).
+_CHI2_1_MEDIAN = 0.454936423119572
+
+
 @dataclass
 class _Transition:
     """A change confirmed by the step test, waiting for windows that show the new level."""
@@ -462,6 +482,12 @@ class _Track:
     history: deque[tuple[int, Gaussian]] = field(default_factory=lambda: deque(maxlen=64))
     # (window end ns, log fit, its variance alone) of the latest windows with evidence.
     fits: deque[tuple[int, float, float]] = field(default_factory=lambda: deque(maxlen=64))
+    # (window end ns, log fit, the variance of its own error as the window says) of the
+    # latest windows with evidence, and the calibration of that variance they give
+    # (:meth:`MotorTracker._calibrate`).
+    own: deque[tuple[int, float, float]] = field(default_factory=lambda: deque(maxlen=64))
+    ratios: deque[float] = field(default_factory=lambda: deque(maxlen=CALIBRATION_PAIRS))
+    scale: float = 1.0
 
     def fits_before(self, end_ns: int, start_ns: int, count: int) -> tuple[float, float] | None:
         """The latest ``count`` fits of windows that ended in ``[start_ns, end_ns)``, weighed
@@ -553,6 +579,9 @@ class MotorTracker:
             )
             for name in PARAMETERS
         }
+        for track in self.tracks.values():
+            # The calibration's triples span two windows (and a hop or two more).
+            track.own = deque(maxlen=2 * math.ceil(self.overlap) + 4)
         self.transitions: dict[str, _Transition] = {}  # circuit -> change being confirmed
         # Log K of an apparent rise put down to a sensor (None: none pending), and the
         # highest K tracked: the flux per field ampere does not rise by itself.
@@ -645,7 +674,8 @@ class MotorTracker:
                     continue
                 self._k_sensor_level = None
             z = math.log(ev.value)
-            r, alone = self._measurement_variance(ev)
+            self._calibrate(track, t_ns, z, ev)
+            r, alone = self._measurement_variance(ev, track.scale)
             if track.state is None:
                 track.state = self._first(track.model, name, z, r, loss, losses)
                 status[name] = "ok"
@@ -695,7 +725,7 @@ class MotorTracker:
             rate = None
             if st is not None and name[0] == "R":
                 rate = 60.0 * track.model.rate(st, loss)
-            step.parameters[name] = TrackedParameter(value, std, status[name], rate)
+            step.parameters[name] = TrackedParameter(value, std, status[name], rate, track.scale)
         return step
 
     def _usable(self, name: str, ev: Evidence) -> bool:
@@ -764,18 +794,57 @@ class MotorTracker:
             return half
         return 0.5 * (self.window_s - min(self.window_s, inductance / resistance))
 
-    def _measurement_variance(self, ev: Evidence) -> tuple[float, float]:
+    def _measurement_variance(self, ev: Evidence, scale: float = 1.0) -> tuple[float, float]:
         """Variance of a fit as one of overlapping windows (for weighing), and alone.
 
         Weighed, a window counts as ``1 / overlap`` of an independent one;
         alone (comparing one window with the state) it has its own variance.
+        The part of it that is the window's own error (not shared) is calibrated by
+        ``scale`` (:meth:`_calibrate`).
         A moving parameter adds nothing here: the observation row already
         places the fit at the window's middle. (Adding the parameter's spread
         over the window as well weighed the precise Rf fits of a heating field
         down until the state lagged the heating by twice the 0.1 % tolerance.)
         """
-        alone = ev.rel_std**2
-        return self.overlap * (alone - ev.shared_var) + ev.shared_var, alone
+        own = scale * (ev.rel_std**2 - ev.shared_var)
+        return self.overlap * own + ev.shared_var, own + ev.shared_var
+
+    def _calibrate(self, track: _Track, t_ns: int, z: float, ev: Evidence) -> None:
+        """Learn how far the windows' own errors are from what their stds say.
+
+        A window's std is the estimator's bound on its error, model error included,
+        and is wide wherever the model might not hold; whether it does shows in the
+        fits themselves. Three windows a window apart share no sample, and the second
+        difference of their fits, ``d = z_1 - 2 z_2 + z_3``, holds their own errors
+        and nothing of a parameter that moves steadily (a winding heating or cooling:
+        a first difference took the heating for error, and the wider windows then
+        let the state lag it). ``d^2 / (own_1 + 4 own_2 + own_3)`` is a chi-square of
+        one degree of freedom where the stds are honest; the median of the latest
+        :data:`CALIBRATION_PAIRS` of these (robust to a step or a bad window) over the
+        chi-square's median is the factor on the windows' own variances. Nothing of
+        the tracked state enters (a state that follows the fits would confirm any
+        factor). The shared part of a window's std (a bias every window at the same
+        operating point has) cancels in such differences, so nothing here can
+        confirm it: it is kept as the window says.
+        """
+        own = ev.rel_std**2 - ev.shared_var
+        if not own > 0.0:
+            return
+        apart_ns = int(round(self.window_s * 1e9))
+        middle = [e for e in track.own if apart_ns <= t_ns - e[0] < 2 * apart_ns]
+        track.own.append((t_ns, z, own))
+        if not middle:
+            return
+        t_j, z_j, own_j = middle[-1]
+        first = [e for e in track.own if apart_ns <= t_j - e[0] < 2 * apart_ns]
+        if not first:
+            return
+        _, z_i, own_i = first[-1]
+        d = z - 2.0 * z_j + z_i
+        track.ratios.append(d * d / (own + 4.0 * own_j + own_i))
+        if len(track.ratios) >= CALIBRATION_MIN_PAIRS:
+            ratio = float(np.median(np.asarray(track.ratios))) / _CHI2_1_MEDIAN
+            track.scale = min(max(ratio, CALIBRATION_RANGE[0]), CALIBRATION_RANGE[1])
 
     def _outlier(self, name: str, nu: float, variance: float) -> bool:
         """Beyond the gate of a window alone, and beyond half the smallest change.

@@ -952,6 +952,7 @@ class SlidingWindowObserver:
         out["std"] = {p: _finite_or_none(t.std) for p, t in tracked.items()}
         out["quality"] = {p: t.status for p, t in tracked.items()}
         out["rate_per_min"] = {"R": _finite_or_none(tracked["R"].rate_per_min)}
+        out["std_scale"] = {p: _finite_or_none(t.std_scale) for p, t in tracked.items()}
         if est is None:
             out["raw"] = {p: None for p in names}
             out["rel_std"] = {p: None for p in names}

@@ -174,6 +174,8 @@ def test_tracked_state_temperatures_and_emf_speed_are_published(p12_run):
             assert c["std"][p] > 0 and c["raw"][p] is not None
             # The tracked std stays near the window's own: overlapping windows share samples.
             assert c["std"][p] / c[p] < 3 * c["rel_std"][p] or c["quality"][p] != "ok"
+            # With the factor the windows' scatter calibrated their variances by.
+            assert 0 < c["std_scale"][p] <= 100
         temp = last["temperature"][circuit]
         assert abs(temp["C"] - 20.0) < max(3.0, 3 * temp["std"]) and 0 < temp["std"] < 10
     speed = last["speed"]
