@@ -348,6 +348,9 @@ class SlidingWindowObserver:
         # A test under way beside the windows: its result and the window index it is used from
         # (as for the filter identification, so that a replay gives the live numbers).
         self._linearity_pending: tuple[Future[Linearity | None], int] | None = None
+        # A bridge made the armature's voltage (seen once, a drive keeps its converter): its
+        # reading is not tested for a curve (see _watch_linearity).
+        self._armature_bridge = False
 
     def start_worker(self, wait_s: float = 0.0) -> bool:
         """Start the circuit worker (if ``parallel`` and not yet started), waiting up to
@@ -541,6 +544,8 @@ class SlidingWindowObserver:
         events = [self._change_event(c) for c in step.changes]
         if tach_event is not None:
             events.append(tach_event)
+        if events:
+            self._restart_linearity()
         for note in step.notes:
             log.info("window %d: %s", index, note)
         flags += step.notes
@@ -557,11 +562,23 @@ class SlidingWindowObserver:
     def _watch_linearity(self, window: Window, period_s: float, index: int) -> None:
         """Add the window's new armature samples to the linearity test; start a test when
         due (in the identification thread, its result used from a fixed later window)."""
-        if "armature" not in self.circuits:
+        if "armature" not in self.circuits or self._armature_bridge:
             return
         self._collect_linearity(index)
         channels = [window.signals[c] for c in ("va", "ia", "if", "omega")]
         if any(np.isnan(x[0]) for x in channels):
+            return
+        if made_by_a_bridge(np.asarray(channels[0], dtype=np.float64), period_s):
+            # The test was built for a chopper's pulses sampled in step with the ADC. A
+            # bridge's jumps are put back between the samples (and their fold with them),
+            # and what the test finds on its voltage is the operating point's, not the
+            # reading's: a 5 % step of K or a tachometer losing 10 % read as a curve of
+            # 0.6-0.8 % of the largest voltage 5-7 s later, and held the armature's windows
+            # for as long as the step stayed in the tested stretch.
+            self._armature_bridge = True
+            self._linearity = None
+            self._linearity_pending = None
+            self.voltage_linearity = None
             return
         acc = self._linearity
         last = self._linearity_end_ns
@@ -589,6 +606,16 @@ class SlidingWindowObserver:
                 self._identifier = ThreadPoolExecutor(1, thread_name_prefix="dcobserver-filter")
             job = self._identifier.submit(acc.snapshot(armature=True))
             self._linearity_pending = (job, index + self._filter_due)
+
+    def _restart_linearity(self) -> None:
+        """After a change of the motor or of its tachometer: the linearity test starts on the
+        samples after it. Samples from both sides under one set of parameters leave an error
+        that follows the operating point, which a curve of the voltage partly explains; a
+        result that says so (not linear) is dropped with them."""
+        self._linearity = None
+        self._linearity_pending = None
+        if self.voltage_linearity is not None and not self.voltage_linearity.linear:
+            self.voltage_linearity = None
 
     def _collect_linearity(self, index: int) -> None:
         """From its window on, the linearity test's result (waiting for it)."""

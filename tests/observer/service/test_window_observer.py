@@ -560,3 +560,29 @@ def test_a_voltage_reading_that_follows_a_curve_holds_the_armature():
     assert all(a["describes_window"] for a in windows(results, "armature", True))
     before = windows(results, "armature", False)
     assert all(not a["describes_window"] for a in before if a["chain"]["intersample"] == "smooth")
+
+
+@pytest.mark.parametrize("drive", ["thyristor", "chopper"])
+def test_a_change_of_the_motor_is_not_read_as_a_curve_of_the_voltage(drive):
+    """A field fault (K -5 % at 15 s, after the first linearity test), the drive running
+    on. Samples from both sides of it under one set of parameters leave an error that
+    follows the operating point, and the linearity test read it as a curve of the voltage
+    (0.6-0.8 % of the largest, 5-7 s after the step) and held every armature window for as
+    long as the step stayed in the tested stretch. Behind a bridge the test does not run
+    (its jumps and their fold are modelled); behind a chopper it starts again after the
+    confirmed change. Either way the armature's windows go on describing the motor."""
+    from bench.accuracy_rates import drive_spec
+
+    rec = simulate(
+        P12, duration_s=28.0, sample_rate_hz=5000.0, seed=1000, drive=drive_spec(drive),
+        drive_name=drive, changes=(Change("K", -0.05, 15.0),),
+    )  # fmt: skip
+    obs, results = _run(_blocks(rec), circuits="armature")
+    events = [e for r in results for e in r.events if e.get("kind") == "change"]
+    assert [e["parameter"] for e in events] == ["K"]
+    after = [r.estimate["armature"] for r in results if r.t1_ns > events[0]["t_ns"] + 1e9]
+    assert after and all(a["describes_window"] for a in after), [
+        a.get("note") for a in after if not a["describes_window"]
+    ][:1]
+    verdict = obs.health()["voltage_linearity"]
+    assert verdict is None if drive == "thyristor" else verdict["linear"]
