@@ -644,9 +644,11 @@ class SlidingWindowObserver:
         curve of the voltage (and, for the field, its voltage shows no mains ripple: a
         chopper's, :func:`~observer.estimation.linearity.field_note`)."""
         result = self.voltage_linearity
-        if result is None and self._armature_measured(circuit, est):
+        if result is None and not self._armature_bridge and self._armature_measured(circuit, est):
             # Not tested yet: a measured voltage that no bridge made may be a chopper's
             # sampled in step, confidently wrong in every window; held until the test says.
+            # (A bridge's voltage is never tested: a window of it without ripple, the drive
+            # at rest, is not a chopper's.)
             return not_described(est, self._untested_note(circuit, window, period_s))
         if result is None or result.linear or not applies_to(est.intersample):
             return est
