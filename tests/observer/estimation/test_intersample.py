@@ -129,23 +129,30 @@ def _filtered_samples(x_fine: np.ndarray, fine: int, kind: str, order: int, cuto
     return (y[::fine] + noise)[100:]
 
 
+#: Firing angles a sample period apart in quarters (a 2 kHz sample is 9 degrees of 50 Hz).
+SWEPT_ANGLES = np.arange(10.0, 170.0, 9.0 / 4)
+FINE = 40
+T_FINE = np.arange(2100 * FINE) / (FS * FINE)
+
+
+def _swept(wave, kind: str, order: int, cutoff_hz: float) -> list[np.ndarray]:
+    """``wave`` at every one of :data:`SWEPT_ANGLES`, filtered and sampled at 2 kHz."""
+    return [
+        _filtered_samples(wave(T_FINE, alpha), FINE, kind, order, cutoff_hz)
+        for alpha in SWEPT_ANGLES
+    ]
+
+
 def test_a_filtered_field_bridge_locked_to_the_samples_has_no_clean_jump_at_any_angle():
     """A single-phase field bridge on 50 Hz mains sampled at 2 kHz fires at the same place
     between samples in every pulse: behind a 2nd-order Butterworth at fs/4, at some firing
     angles one interval of each filtered jump's run passed every test of a clean jump, and
     the daemon's first windows (a steady field) decided ``switched``: Rf 1.5-3 % off at 5 of
     its std for the rest of the recording."""
-    fine = 40
-    t = np.arange(2100 * fine) / (FS * fine)
-    read = [
-        find_switching(
-            _filtered_samples(field_bridge_voltage(t, alpha), fine, "butter", 2, FS / 4), 1 / FS
-        ).switched
-        for alpha in np.arange(10.0, 170.0, 9.0 / 4)  # a sample period is 9 degrees of mains
-    ]
-    assert not any(read)
-    bare = find_switching(field_bridge_voltage(t[::fine], 50.0) + 0.3 * np.sin(t[::fine]), 1 / FS)
-    assert bare.switched
+    voltages = _swept(field_bridge_voltage, "butter", 2, FS / 4)
+    assert not any(find_switching(v, 1 / FS).switched for v in voltages)
+    t = T_FINE[::FINE]
+    assert find_switching(field_bridge_voltage(t, 50.0) + 0.3 * np.sin(t), 1 / FS).switched
 
 
 def test_a_filtered_armature_bridge_at_a_steady_angle_reads_no_clean_jump():
@@ -154,25 +161,15 @@ def test_a_filtered_armature_bridge_at_a_steady_angle_reads_no_clean_jump():
     two angles in 72 read clean jumps at both ends of a run of four flagged intervals, whose
     middle samples bend by tens of percent of the jump (settling), where the back-EMF between
     two clean jumps bends by a few percent."""
-    fine = 40
-    t = np.arange(2100 * fine) / (FS * fine)
-    read = [
-        find_switching(
-            _filtered_samples(bridge_voltage(t, alpha), fine, "bessel", 4, FS / 5), 1 / FS
-        ).switched
-        for alpha in np.arange(10.0, 170.0, 9.0 / 4)
-    ]
-    assert not any(read)
+    voltages = _swept(bridge_voltage, "bessel", 4, FS / 5)
+    assert not any(find_switching(v, 1 / FS).switched for v in voltages)
 
 
 def test_a_configured_voltage_filter_is_never_read_as_switched():
     """Where the voltage's filter is configured, a jump cannot be clean, whatever the samples
     look like: a 6-pulse bridge at a steady firing angle behind a 2nd-order Butterworth at
     fs/3 reads clean jumps at some angles (its 6.7 samples a pulse take three places)."""
-    fine = 40
-    t = np.arange(2100 * fine) / (FS * fine)
-    alphas = np.arange(10.0, 170.0, 9.0 / 4)
-    voltages = [_filtered_samples(bridge_voltage(t, a), fine, "butter", 2, FS / 3) for a in alphas]
+    voltages = _swept(bridge_voltage, "butter", 2, FS / 3)
     assert any(find_switching(v, 1 / FS).switched for v in voltages)
     assert {choose_model(v, dt=1 / FS, filtered=True)[0] for v in voltages} == {"smooth"}
 
