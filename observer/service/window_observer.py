@@ -575,17 +575,11 @@ class SlidingWindowObserver:
         channels = [window.signals[c] for c in ("va", "ia", "if", "omega")]
         if any(np.isnan(x[0]) for x in channels):
             return
-        if made_by_a_bridge(np.asarray(channels[0], dtype=np.float64), period_s):
-            # The test was built for a chopper's pulses sampled in step with the ADC. A
-            # bridge's jumps are put back between the samples (and their fold with them),
-            # and what the test finds on its voltage is the operating point's, not the
-            # reading's: a 5 % step of K or a tachometer losing 10 % read as a curve of
-            # 0.6-0.8 % of the largest voltage 5-7 s later, and held the armature's windows
-            # for as long as the step stayed in the tested stretch.
-            self._armature_bridge = True
-            self._linearity = None
-            self._linearity_pending = None
-            self.voltage_linearity = None
+        # Looked for in every window while one would be held (no result yet, or a curve),
+        # else in each test's last window: a chopper's voltage read as linear need not pay
+        # the look (~1 ms a window at 10 kHz) again every hop.
+        result = self.voltage_linearity
+        if (result is None or not result.linear) and self._bridge_seen(channels[0], period_s):
             return
         acc = self._linearity
         last = self._linearity_end_ns
@@ -608,11 +602,28 @@ class SlidingWindowObserver:
             acc.added_seconds - self._linearity_tested_s >= RETEST_SECONDS
             and self._linearity_pending is None
         ):
+            if result is not None and result.linear and self._bridge_seen(channels[0], period_s):
+                return
             self._linearity_tested_s = acc.added_seconds
             if self._identifier is None:
                 self._identifier = ThreadPoolExecutor(1, thread_name_prefix="dcobserver-filter")
             job = self._identifier.submit(acc.snapshot(armature=True))
             self._linearity_pending = (job, index + self._filter_due)
+
+    def _bridge_seen(self, va: np.ndarray, period_s: float) -> bool:
+        """Whether the window's armature voltage ``va`` shows a bridge's ripple; then the
+        linearity test stops for good. It was built for a chopper's pulses sampled in step with
+        the ADC. A bridge's jumps are put back between the samples (and their fold with them),
+        and what the test finds on its voltage is the operating point's, not the reading's: a
+        5 % step of K or a tachometer losing 10 % read as a curve of 0.6-0.8 % of the largest
+        voltage 5-7 s later, and held the armature's windows for as long as the step stayed in
+        the tested stretch."""
+        if not made_by_a_bridge(np.asarray(va, dtype=np.float64), period_s):
+            return False
+        self._armature_bridge = True
+        self._restart_linearity()
+        self.voltage_linearity = None
+        return True
 
     def _restart_linearity(self) -> None:
         """After a change of the motor or of its tachometer: the linearity test starts on the
