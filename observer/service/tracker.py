@@ -441,15 +441,15 @@ ONSET_MARGIN_HOPS = 3
 #: stds: their second difference squared over the variance their own (unshared) parts
 #: give it, the latest this many. Consecutive triples share most samples: 300 (30 s at a
 #: 0.1 s hop) hold about 30 independent ones, whose median is known to within ~25 %.
-CALIBRATION_PAIRS = 300
+CALIBRATION_TRIPLES = 300
 
-#: Before this many pairs the windows' variances are taken as they say.
-CALIBRATION_MIN_PAIRS = 50
+#: Before this many triples the windows' variances are taken as they say.
+CALIBRATION_MIN_TRIPLES = 50
 
 #: The calibration's range (a factor on the variance of a window's own error).
 CALIBRATION_RANGE = (0.01, 100.0)
 
-#: Median of a chi-square variable of one degree of freedom (honest pairs' ratios).
+#: Median of a chi-square variable of one degree of freedom (honest triples' ratios).
 _CHI2_1_MEDIAN = 0.454936423119572
 
 
@@ -484,9 +484,9 @@ class _Track:
     fits: deque[tuple[int, float, float]] = field(default_factory=lambda: deque(maxlen=64))
     # (window end ns, log fit, the variance of its own error as the window says) of the
     # latest windows with evidence, and the calibration of that variance they give
-    # (:meth:`MotorTracker._calibrate`).
-    own: deque[tuple[int, float, float]] = field(default_factory=lambda: deque(maxlen=64))
-    ratios: deque[float] = field(default_factory=lambda: deque(maxlen=CALIBRATION_PAIRS))
+    # (:meth:`MotorTracker._calibrate`); sized by the tracker (two windows' worth).
+    own: deque[tuple[int, float, float]] = field(default_factory=deque)
+    ratios: deque[float] = field(default_factory=lambda: deque(maxlen=CALIBRATION_TRIPLES))
     scale: float = 1.0
 
     def fits_before(self, end_ns: int, start_ns: int, count: int) -> tuple[float, float] | None:
@@ -576,12 +576,11 @@ class MotorTracker:
                     window_s=window_s,
                     hop_s=hop_s,
                 ),
+                # The calibration's triples span two windows (and a hop or two more).
+                own=deque(maxlen=2 * math.ceil(self.overlap) + 4),
             )
             for name in PARAMETERS
         }
-        for track in self.tracks.values():
-            # The calibration's triples span two windows (and a hop or two more).
-            track.own = deque(maxlen=2 * math.ceil(self.overlap) + 4)
         self.transitions: dict[str, _Transition] = {}  # circuit -> change being confirmed
         # Log K of an apparent rise put down to a sensor (None: none pending), and the
         # highest K tracked: the flux per field ampere does not rise by itself.
@@ -820,7 +819,7 @@ class MotorTracker:
         a first difference took the heating for error, and the wider windows then
         let the state lag it). ``d^2 / (own_1 + 4 own_2 + own_3)`` is a chi-square of
         one degree of freedom where the stds are honest; the median of the latest
-        :data:`CALIBRATION_PAIRS` of these (robust to a step or a bad window) over the
+        :data:`CALIBRATION_TRIPLES` of these (robust to a step or a bad window) over the
         chi-square's median is the factor on the windows' own variances. Nothing of
         the tracked state enters (a state that follows the fits would confirm any
         factor). The shared part of a window's std (a bias every window at the same
@@ -842,7 +841,7 @@ class MotorTracker:
         _, z_i, own_i = first[-1]
         d = z - 2.0 * z_j + z_i
         track.ratios.append(d * d / (own + 4.0 * own_j + own_i))
-        if len(track.ratios) >= CALIBRATION_MIN_PAIRS:
+        if len(track.ratios) >= CALIBRATION_MIN_TRIPLES:
             ratio = float(np.median(np.asarray(track.ratios))) / _CHI2_1_MEDIAN
             track.scale = min(max(ratio, CALIBRATION_RANGE[0]), CALIBRATION_RANGE[1])
 

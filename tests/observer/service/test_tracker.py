@@ -461,7 +461,7 @@ def test_windows_whose_stds_are_off_are_calibrated_by_their_own_differences():
         for i in range(600):
             ev = {name: Evidence(e.value, e.rel_std * says) for name, e in fits(TRUTH).items()}
             step = trk.step((i + 1) * HOP_NS, ev)
-            if i == 40:  # fewer pairs than CALIBRATION_MIN_PAIRS: as the windows say
+            if i == 40:  # fewer triples than CALIBRATION_MIN_TRIPLES: as the windows say
                 assert {trk.tracks[n].scale for n in TRUTH} == {1.0}
         return trk, {name: p.std for name, p in step.parameters.items()}
 
