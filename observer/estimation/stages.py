@@ -694,7 +694,7 @@ def operating_point_stage(
     if seg.starts.size == 0:
         return spec
     index = np.concatenate([np.arange(a, b + 1) for a, b in zip(seg.starts, seg.ends, strict=True)])
-    if index.size != fit.point.residual.shape[0] or index.size == 0:
+    if index.size != fit.point.residual.shape[0]:
         return spec
     size = np.abs(np.asarray(problem.voltage, dtype=np.float64))[index]
     per_block = max(1, int(round(SPLIT_BLOCK_S / problem.dt)))
