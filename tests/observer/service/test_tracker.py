@@ -471,3 +471,78 @@ def test_windows_whose_stds_are_off_are_calibrated_by_their_own_differences():
         for name in TRUTH:
             assert 0.5 < trk.tracks[name].scale * says**2 < 2.0, name
             assert std[name] / honest[name] == pytest.approx(1.0, abs=0.3), name
+
+
+def test_a_step_seen_first_in_another_parameter_is_taken_up_at_once():
+    """Windows across a step of Ra move K's fits as well (the two trade off where the
+    current and speed barely vary), and K's step test may alarm first. Its change is not
+    borne out, but meanwhile Ra's test has gone on with the state frozen: Ra's change is
+    confirmed soon after, not tested again from nothing (2.77 s after the step here)."""
+    fits = Fits(2)
+    trk = _tracker()
+    step_at, rel = 20.03, 0.004  # Ra's windows twice as uncertain as REL_STD
+    events, notes = [], []
+    for i in range(300):
+        t = (i + 1) * 0.1
+        truth = _mixed("Ra", 0.03, step_at, t)
+        window = fits(truth)
+        f = min(1.0, max(0.0, (t - step_at) / 1.0))
+        # K's fits dip while the windows straddle the step.
+        k = window["K"]
+        window["K"] = Evidence(k.value * (1.0 - 0.02 * math.sin(math.pi * f)), k.rel_std)
+        err = math.log(window["Ra"].value / truth["Ra"]) * rel / REL_STD["Ra"]
+        window["Ra"] = Evidence(truth["Ra"] * math.exp(err), rel)
+        step = trk.step(int(round(t * 1e9)), window)
+        events += step.changes
+        notes += step.notes
+    assert any(n.startswith("K: a change was signalled") for n in notes), notes
+    assert [e.parameter for e in events] == ["Ra"]
+    assert events[0].t_detected_ns / 1e9 - step_at <= 2.0
+    assert abs(events[0].relative - 0.03) < 3 * events[0].relative_std
+
+
+def test_a_change_taken_up_from_another_waits_for_windows_that_show_it():
+    """K's test alarms first on windows across a step of Ra, and Ra's alarms while K's
+    change waits for its level: when K's is not borne out, Ra's is taken up at once. The
+    windows that follow may show nothing of Ra (the drive stops): the circuit waits for
+    them, then confirms Ra's change."""
+    fits = Fits(2)
+    trk = _tracker()
+    step_at = 20.03
+    events, notes = [], []
+    for i in range(300):
+        t = (i + 1) * 0.1
+        window = fits(_mixed("Ra", 0.03, step_at, t))
+        f = min(1.0, max(0.0, (t - step_at) / 1.0))
+        k = window["K"]
+        window["K"] = Evidence(k.value * (1.0 - 0.02 * math.sin(math.pi * f)), k.rel_std)
+        if 21.45 < t < 22.0:  # nothing of Ra right after K's change is dropped (21.4 s)
+            del window["Ra"]
+        step = trk.step(int(round(t * 1e9)), window)
+        events += step.changes
+        notes += step.notes
+        if step.notes:
+            assert trk.transitions["armature"].parameter == "Ra"  # taken up at once
+    assert any(n.startswith("K: a change was signalled") for n in notes), notes
+    assert [e.parameter for e in events] == ["Ra"]
+    assert events[0].t_detected_ns / 1e9 - step_at <= 2.5
+    assert abs(events[0].relative - 0.03) < 3 * events[0].relative_std
+
+
+def test_the_calibration_takes_no_triple_across_a_confirmed_change():
+    """Three fits a window apart around a step differ by the step, not by the windows'
+    errors: after a confirmed change the calibration starts its triples afresh."""
+    fits = Fits(2)
+    trk = _tracker()
+    step_at, seen = 20.03, None
+    for i in range(300):
+        t = (i + 1) * 0.1
+        step = trk.step(int(round(t * 1e9)), fits(_mixed("Ra", 0.03, step_at, t)))
+        if step.changes:
+            seen = len(trk.tracks["Ra"].ratios)
+    assert seen is not None
+    after = list(trk.tracks["Ra"].ratios)[seen:]
+    assert len(after) > 50
+    # Honest triples are chi-square(1): ~10 at most in a few hundred; one across the
+    # 3 % step (15 of the windows' std) reads ~40.
+    assert max(after) < 15.0
