@@ -324,6 +324,10 @@ class TrackerConfig:
     change_wait_s: float = dataclasses.field(default=3.0, metadata={"check": _positive})
     # Thermal time constants of the windings (s), motor data; 0: no thermal model,
     # the resistance is tracked as a level with a rate of change.
+    # With no thermal time constant: weigh thermal models of time constants 20 s - 43 min
+    # against the level with a rate, by how well each predicts the windows, and publish
+    # their mixture (observer.service.tracker.ThermalBank); false: the level with a rate.
+    identify_thermal: bool = True
     field_thermal_tau_s: float = dataclasses.field(default=0.0, metadata={"check": _non_negative})
     armature_thermal_tau_s: float = dataclasses.field(
         default=0.0, metadata={"check": _non_negative}

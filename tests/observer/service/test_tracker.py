@@ -546,3 +546,33 @@ def test_the_calibration_takes_no_triple_across_a_confirmed_change():
     # Honest triples are chi-square(1): ~10 at most in a few hundred; one across the
     # 3 % step (15 of the windows' std) reads ~40.
     assert max(after) < 15.0
+
+
+@pytest.mark.parametrize("identify", [True, False])
+def test_a_winding_heating_fast_is_followed_without_its_time_constant(identify):
+    """A winding heated from cold by a duty cycle's losses with a 40 s time constant, its
+    fits as precise as a field's (0.02 %), and no time constant configured. A level with a
+    rate lags where the rate bends; the thermal models weighed beside it by their
+    likelihood carry the heating, and the log says which time constant leads."""
+    tau, gain = 40.0, 0.3 / 300.0  # steady rise 30 % at 300 W
+
+    def loss(t):
+        return 300.0 if (t % 8.0) < 5.0 else 100.0
+
+    truth = _heated(tau, gain, loss, 120.0, 185.0)
+    rng = np.random.default_rng(2)
+    trk = _tracker(replace(TrackerConfig(), identify_thermal=identify))
+    errors, notes = [], []
+    for i in range(10, 1200):
+        t = i * 0.1
+        fit = truth[i - 5] * (1 + 2e-4 * rng.standard_normal())
+        step = trk.step(int(round(t * 1e9)), {"Rf": Evidence(fit, 2e-4)}, loss_w=loss(t - 0.1))
+        notes += step.notes
+        if t > 8:
+            errors.append(step.parameters["Rf"].value / truth[i] - 1)
+    within = np.mean(np.abs(errors) <= 1e-3)
+    if identify:
+        assert within >= 0.95
+        assert any("thermal time constant of about 40 s" in n for n in notes), notes
+    else:
+        assert within < 0.95  # the level with a rate alone lags

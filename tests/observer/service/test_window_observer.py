@@ -150,8 +150,11 @@ def test_held_parameter_is_carried_forward_by_the_tracker(p12_run):
                 if q == "held" and key in previous:
                     value, std, rate = previous[key]
                     if p == "R":
+                        # The published rate is at the last hop's loss; the thermal models
+                        # weighed beside the level relax at this hop's (10-20 ppm apart on
+                        # the armature's duty cycle; a window's fit moves it far more).
                         hop_min = (r.t1_ns - previous[(circuit, "t")]) / 60e9
-                        assert c[p] == pytest.approx(value * (1 + rate * hop_min), rel=1e-6)
+                        assert c[p] == pytest.approx(value * (1 + rate * hop_min), rel=1e-4)
                     else:
                         assert c[p] == value
                     assert c["std"][p] > std
