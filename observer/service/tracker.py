@@ -364,6 +364,11 @@ THERMAL_TAUS_S = (20.0, 40.0, 80.0, 160.0, 320.0, 640.0, 1280.0, 2560.0)
 #: The weight at which a model of :class:`ThermalBank` is said (in the log) to lead.
 THERMAL_LEAD = 0.9
 
+#: A leading thermal model is said to show heating where its learnt rise is this many of
+#: its stds above zero: on an hour of clean recordings a model of 20 s without a rise came
+#: to lead Ra (weight 0.91), predicting a constant as well as the level with a rate.
+HEATING_SIGMAS = 3.0
+
 
 def _loglik(nu: float, s: float) -> float:
     """Log-likelihood of an innovation ``nu`` of variance ``s``."""
@@ -444,25 +449,33 @@ class ThermalBank:
             if c.state is not None:
                 c.model.shift(c.state, z - float(c.state.x[0]), r)
 
-    def leader(self) -> tuple[float, float]:
-        """The most likely model's time constant (0: the track's own model) and weight."""
+    def leader(self) -> tuple[_Candidate | None, float]:
+        """The most likely model (None: the track's own) and its weight."""
         w = self.weights()
         live = [c for c in self.candidates if c.state is not None]
         i = int(np.argmax(w))
-        return (0.0 if i == 0 else live[i - 1].model.tau), float(w[i])
+        return (None if i == 0 else live[i - 1]), float(w[i])
 
     def news(self, name: str) -> str | None:
-        """A line for the log when another model has come to lead clearly
-        (:data:`THERMAL_LEAD` of the weight), else None."""
-        tau, weight = self.leader()
-        if weight < THERMAL_LEAD or tau == self.noted_tau_s:
+        """A line for the log when a thermal model whose learnt rise is clear
+        (:data:`HEATING_SIGMAS`) has come to lead (:data:`THERMAL_LEAD` of the weight), or
+        has stopped leading; else None. A resistance that does not move is predicted as well
+        by a thermal model without a rise as by the level, and is not called heated."""
+        leader, weight = self.leader()
+        tau = 0.0
+        if leader is not None and leader.state is not None and weight >= THERMAL_LEAD:
+            rise, var = float(leader.state.x[1]), float(leader.state.P[1, 1])
+            if rise > HEATING_SIGMAS * math.sqrt(max(var, 0.0)):
+                tau = leader.model.tau
+        if tau == self.noted_tau_s or (tau == 0.0 and weight < THERMAL_LEAD):
             return None
-        self.noted_tau_s = tau
+        before, self.noted_tau_s = self.noted_tau_s, tau
         if tau == 0.0:
-            return f"{name}: a level with a steady rate of change now predicts the windows best"
+            return f"{name}: the heating model of {before:.0f} s no longer leads"
         return (
             f"{name}: the windows follow a winding heated by its losses with a thermal time "
-            f"constant of about {tau:.0f} s (weight {weight:.2f}); tracked with that model"
+            f"constant of about {tau:.0f} s (weight {weight:.2f}); the published value "
+            f"follows the models weighed by their likelihood"
         )
 
 

@@ -597,3 +597,22 @@ def test_the_first_window_after_a_held_stretch_counts_whole(seed):
         if first is None and t > 18:
             first = step.parameters["Ra"].value / truth["Ra"] - 1.0
     assert abs(first) < 0.004
+
+
+def test_a_winding_that_does_not_heat_is_not_called_heated():
+    """Ten minutes of a resistance that does not move, under a duty cycle's losses. A thermal
+    model without a rise predicts a constant as well as the level with a rate (better: it
+    has no rate to wander) and comes to carry most of the weight; the log does not call
+    the winding heated (it did after 531 s here)."""
+    fits = Fits(1)
+    trk = _tracker()
+    notes = []
+    for i in range(10, 6000):
+        t = i * 0.1
+        loss = 300.0 if (t % 8.0) < 5.0 else 100.0
+        notes += trk.step(int(round(t * 1e9)), fits(TRUTH), loss_w=loss).notes
+    bank = trk.tracks["Ra"].bank
+    leader, weight = bank.leader() if bank is not None else (None, 0.0)
+    assert leader is not None and weight > 0.9  # a thermal model leads ...
+    assert not any("heated" in n for n in notes), notes  # ... and shows no heating
+    assert trk.value("Ra") == pytest.approx(TRUTH["Ra"], rel=2e-3)
