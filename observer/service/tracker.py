@@ -561,6 +561,14 @@ CHANGE_HORIZON_S = 10.0
 ONSET_MARGIN_HOPS = 3
 
 
+#: A window beyond its parameter's quality limit counts towards a confirmed change's level
+#: (:meth:`MotorTracker._shows_level`) only within this many times the limit: far beyond it
+#: a window does not identify the parameter and its std, taken at wherever the fit came to
+#: rest, says little. On a 440 V motor's heating recording the field's Lf windows, where the
+#: field voltage stood still, ran off to 4-44 times the truth at stds of 6-38 % (15-95 times
+#: Lf's limit) and "showed" a change of Lf of +360 %.
+WEAK_FACTOR = 5.0
+
 #: A change the step test confirmed is reported once the windows after it differ from the
 #: state before it by this many of the difference's stds. The step test has already
 #: weighed every window since the onset (log-likelihood ratio ``change_threshold``, about
@@ -990,6 +998,8 @@ class MotorTracker:
         if self._usable(tr.parameter, ev):
             return True
         if not (math.isfinite(ev.value) and ev.value > 0 and math.isfinite(ev.rel_std)):
+            return False
+        if ev.rel_std > WEAK_FACTOR * self.limits[tr.parameter]:
             return False
         shown = abs(math.log(ev.value) - float(tr.before.x[0]))
         return 0 < ev.rel_std * self.config.gate_sigma <= shown

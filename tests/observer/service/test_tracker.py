@@ -616,3 +616,27 @@ def test_a_winding_that_does_not_heat_is_not_called_heated():
     assert leader is not None and weight > 0.9  # a thermal model leads ...
     assert not any("heated" in n for n in notes), notes  # ... and shows no heating
     assert trk.value("Ra") == pytest.approx(TRUTH["Ra"], rel=2e-3)
+
+
+def test_windows_far_beyond_the_quality_limit_do_not_size_a_change():
+    """Where the field voltage stands still, Lf's windows may run off to the edge of the
+    range, with stds far beyond Lf's quality limit (a 440 V motor's heating recording: 4-44
+    times the truth at 6-38 %). A few windows on the way there set the step test off; the
+    windows that follow, ten times the truth at 55 % (5.5 times the limit), "show" that
+    level by themselves and reported Lf risen 900 %. They are no evidence: the change is
+    not sized from them, and Lf's uncertainty is widened instead."""
+    fits = Fits(4)
+    trk = _tracker()
+    events, notes = [], []
+    for i in range(300):
+        t = (i + 1) * 0.1
+        window = fits(TRUTH)
+        if 20.0 < t < 20.5:
+            window["Lf"] = Evidence(TRUTH["Lf"] * 1.3, 0.02)
+        elif 20.5 <= t < 24.0:
+            window["Lf"] = Evidence(TRUTH["Lf"] * 10 * (1 + 0.01 * math.sin(7 * t)), 0.55)
+        step = trk.step(int(round(t * 1e9)), window)
+        events += step.changes
+        notes += step.notes
+    assert events == []
+    assert any(n.startswith("Lf: a change was seen but no window") for n in notes), notes
