@@ -11,13 +11,18 @@ changes are what physics bounds) and follows
 * ``R``: a level and its rate of change (the windings heat and cool), or, with
   a thermal time constant configured, a first-order thermal model driven by
   the machine's I^2R losses (:class:`Thermal`), so the resistance is carried
-  between informative windows too.
+  between informative windows too. Without one, thermal models of time
+  constants from 20 s to 43 min are weighed beside the level by their
+  likelihood and the published value is their mixture (:class:`ThermalBank`).
 
 The process noise ``q`` comes from physical rates (``[observer.tracker]``): how
 far a parameter can wander per minute. A window's fit enters with variance
 ``overlap * rel_std^2``: consecutive windows share ``1 - hop/window`` of their
 samples, so ``overlap = window_s / hop_s`` windows carry the information of one
-(treating them as independent would count each sample ``overlap`` times). A
+(treating them as independent would count each sample ``overlap`` times). The
+first window after a held stretch of a window or more shares no sample with
+any the state holds and weighs whole (:meth:`MotorTracker._repeats`); the step
+test weighs every window as one of a run. A
 fit stands for the middle of the samples that inform it, not the window's end:
 models with a rate say so in their observation row.
 
