@@ -115,6 +115,20 @@ def predict(state: Gaussian, transition: np.ndarray, noise: np.ndarray) -> None:
     state.P = transition @ state.P @ transition.T + noise
 
 
+def innovation(
+    model: Model,
+    state: Gaussian,
+    z: float,
+    r: float,
+    lag_s: float,
+    losses: Sequence[tuple[float, float]],
+) -> tuple[np.ndarray, float, float]:
+    """A fit ``z`` (log, measurement variance ``r``) standing ``lag_s`` before now against
+    ``state``: the observation row, the innovation and its variance."""
+    row, predicted = model.observe(state, lag_s, losses)
+    return row, z - predicted, float(row @ state.P @ row + r)
+
+
 def update(state: Gaussian, row: np.ndarray, nu: float, s: float) -> None:
     """Kalman update in place with innovation ``nu`` of variance ``s`` (Joseph form)."""
     gain = state.P @ row / s
@@ -383,14 +397,14 @@ def _loglik(nu: float, s: float) -> float:
 @dataclass
 class _Candidate:
     model: Model
-    state: Gaussian | None = None
+    state: Gaussian
     loglik: float = 0.0
 
 
-def _heating(model: Model, state: Gaussian | None) -> float:
+def _heating(model: Model, state: Gaussian) -> float:
     """``model``'s time constant where it is a thermal model whose learnt rise is clear
     (:data:`HEATING_SIGMAS` of its std above zero), else 0."""
-    if not isinstance(model, Thermal) or state is None:
+    if not isinstance(model, Thermal):
         return 0.0
     rise, var = float(state.x[1]), float(state.P[1, 1])
     return model.tau if rise > HEATING_SIGMAS * math.sqrt(max(var, 0.0)) else 0.0
@@ -414,31 +428,24 @@ class ThermalBank:
     alone; a confirmed one moves every candidate to the new level.
     """
 
-    def __init__(self, q_level: float, taus: Sequence[float] = THERMAL_TAUS_S) -> None:
-        self.candidates = [_Candidate(Thermal(tau, q_level)) for tau in taus]
+    def __init__(self, candidates: Sequence[_Candidate]) -> None:
+        self.candidates = list(candidates)  # started with the track's first fit
         self.loglik = 0.0  # the track's own model's
         self.noted_tau_s = 0.0  # the time constant last said to lead (0: the own model)
 
     def predict(self, dt: float, loss_w: float) -> None:
         for c in self.candidates:
-            if c.state is not None:
-                c.model.predict(c.state, dt, loss_w)
+            c.model.predict(c.state, dt, loss_w)
 
     def weights(self) -> np.ndarray:
-        """Weights of the track's own model and of each candidate with a state."""
-        lls = np.array([self.loglik] + [c.loglik for c in self.candidates if c.state is not None])
+        """Weights of the track's own model and of each candidate."""
+        lls = np.array([self.loglik] + [c.loglik for c in self.candidates])
         w = np.exp(lls - lls.max())
         return np.asarray(w / w.sum())
 
     def mixture(self, own: tuple[float, float]) -> tuple[float, float]:
         """The mixture's log value and variance, given the own model's."""
-        levels = [own] + [
-            (float(c.state.x[0]), float(c.state.P[0, 0]))
-            for c in self.candidates
-            if c.state is not None
-        ]
-        if len(levels) == 1:
-            return own
+        levels = [own] + [(float(c.state.x[0]), float(c.state.P[0, 0])) for c in self.candidates]
         w = self.weights()
         x = np.array([v for v, _ in levels])
         p = np.array([v for _, v in levels])
@@ -447,28 +454,23 @@ class ThermalBank:
 
     def rate(self, own: float, loss_w: float) -> float:
         """The mixture's rate of change (1/s), given the own model's."""
-        rates = [own] + [
-            c.model.rate(c.state, loss_w) for c in self.candidates if c.state is not None
-        ]
+        rates = [own] + [c.model.rate(c.state, loss_w) for c in self.candidates]
         return float(self.weights() @ np.array(rates))
 
     def widen(self, variance: float) -> None:
         for c in self.candidates:
-            if c.state is not None:
-                c.state.P[0, 0] += variance
+            c.state.P[0, 0] += variance
 
     def shift_to(self, z: float, r: float) -> None:
         """A confirmed change: every candidate's level moves to ``z`` (variance ``r``)."""
         for c in self.candidates:
-            if c.state is not None:
-                c.model.shift(c.state, z - float(c.state.x[0]), r)
+            c.model.shift(c.state, z - float(c.state.x[0]), r)
 
     def leader(self) -> tuple[_Candidate | None, float]:
         """The most likely model (None: the track's own) and its weight."""
         w = self.weights()
-        live = [c for c in self.candidates if c.state is not None]
         i = int(np.argmax(w))
-        return (None if i == 0 else live[i - 1]), float(w[i])
+        return (None if i == 0 else self.candidates[i - 1]), float(w[i])
 
     def news(self, name: str, own: Model, own_state: Gaussian) -> str | None:
         """A line for the log when a thermal model whose learnt rise is clear
@@ -741,11 +743,9 @@ class MotorTracker:
             )
             for name in PARAMETERS
         }
-        if config.identify_thermal:
-            q = config.R_drift_per_min**2 / 60.0
-            for name, tau in taus.items():
-                if not tau > 0:
-                    self.tracks[name].bank = ThermalBank(q)
+        # Resistances without a thermal time constant: thermal models beside their level,
+        # started with their first fit (:class:`ThermalBank`).
+        self._banked = {n for n, tau in taus.items() if config.identify_thermal and not tau > 0}
         self.transitions: dict[str, _Transition] = {}  # circuit -> change being confirmed
         # Log K of an apparent rise put down to a sensor (None: none pending), and the
         # highest K tracked: the flux per field ampere does not rise by itself.
@@ -859,15 +859,15 @@ class MotorTracker:
             if track.state is None:
                 track.state = self._first(track.model, name, z, r, loss, losses)
                 track.last_in_ns = t_ns
-                if track.bank is not None and not loss > 0:
-                    track.bank = None  # no losses known to drive a thermal model
-                if track.bank is not None:
-                    for c in track.bank.candidates:
-                        c.state = self._first(c.model, name, z, r, loss, losses)
+                if name in self._banked and loss > 0:  # (losses known to drive them)
+                    q = self.config.R_drift_per_min**2 / 60.0
+                    models = [Thermal(tau, q) for tau in THERMAL_TAUS_S]
+                    track.bank = ThermalBank(
+                        [_Candidate(m, self._first(m, name, z, r, loss, losses)) for m in models]
+                    )
                 status[name] = "ok"
                 continue
-            row, predicted = track.model.observe(track.state, self._fit_lag(name), losses)
-            nu, s = z - predicted, float(row @ track.state.P @ row + r)
+            row, nu, s = innovation(track.model, track.state, z, r, self._fit_lag(name), losses)
             track.history.append((t_ns, track.state.copy()))
             track.fits.append((t_ns, z, alone))
             outlier = self._outlier(name, nu, s - r + alone)
@@ -891,10 +891,7 @@ class MotorTracker:
                 track.bank.loglik += _loglik(nu, s)
                 lag = self._fit_lag(name)
                 for c in track.bank.candidates:
-                    assert c.state is not None
-                    row_c, predicted_c = c.model.observe(c.state, lag, losses)
-                    nu_c = z - predicted_c
-                    s_c = float(row_c @ c.state.P @ row_c + r)
+                    row_c, nu_c, s_c = innovation(c.model, c.state, z, r, lag, losses)
                     c.loglik += _loglik(nu_c, s_c)
                     update(c.state, row_c, nu_c, s_c)
                 self._promote(track)
@@ -916,9 +913,10 @@ class MotorTracker:
             std = None if value is None or rel is None else value * rel
             rate = None
             if st is not None and name[0] == "R":
-                rate = 60.0 * track.model.rate(st, loss)
+                rate = track.model.rate(st, loss)
                 if track.bank is not None:
-                    rate = 60.0 * track.bank.rate(track.model.rate(st, loss), loss)
+                    rate = track.bank.rate(rate, loss)
+                rate *= 60.0
             step.parameters[name] = TrackedParameter(value, std, status[name], rate, track.scale)
         return step
 
@@ -934,7 +932,6 @@ class MotorTracker:
         leader, weight = track.bank.leader()
         if leader is None or weight < THERMAL_LEAD or not _heating(leader.model, leader.state):
             return
-        assert leader.state is not None
         leader.model, track.model = track.model, leader.model
         leader.state, track.state = track.state, leader.state
         leader.loglik, track.bank.loglik = track.bank.loglik, leader.loglik
@@ -995,9 +992,8 @@ class MotorTracker:
                 continue
             z = math.log(ev.value)
             r, alone = self._measurement_variance(ev, track.scale)
-            row, predicted = track.model.observe(track.state, self._fit_lag(name), losses)
-            s = float(row @ track.state.P @ row + r)
-            alarm = track.test.observe(t_ns, row, z - predicted, s, None)
+            row, nu, s = innovation(track.model, track.state, z, r, self._fit_lag(name), losses)
+            alarm = track.test.observe(t_ns, row, nu, s, None)
             if alarm is not None and name not in tr.pending:
                 tr.pending[name] = (alarm, (t_ns, z, alone))
 
@@ -1054,8 +1050,7 @@ class MotorTracker:
         """
         state = model.initial(z, r, loss)
         state.P[0, 0] += 1.0
-        row, predicted = model.observe(state, self._fit_lag(name), losses)
-        update(state, row, z - predicted, float(row @ state.P @ row + r))
+        update(state, *innovation(model, state, z, r, self._fit_lag(name), losses))
         return state
 
     def _fit_lag(self, name: str) -> float:
