@@ -473,6 +473,21 @@ def test_windows_whose_stds_are_off_are_calibrated_by_their_own_differences():
             assert std[name] / honest[name] == pytest.approx(1.0, abs=0.3), name
 
 
+def _ra_step_seen_by_k(fits, t, step_at, rel=None):
+    """The window ending at ``t`` over a 3 % step of Ra at ``step_at``: K's fits dip while
+    the windows straddle the step; ``rel``: Ra's windows that uncertain (their errors
+    scaled from REL_STD)."""
+    truth = _mixed("Ra", 0.03, step_at, t)
+    window = fits(truth)
+    f = min(1.0, max(0.0, (t - step_at) / 1.0))
+    k = window["K"]
+    window["K"] = Evidence(k.value * (1.0 - 0.02 * math.sin(math.pi * f)), k.rel_std)
+    if rel is not None:
+        err = math.log(window["Ra"].value / truth["Ra"]) * rel / REL_STD["Ra"]
+        window["Ra"] = Evidence(truth["Ra"] * math.exp(err), rel)
+    return window
+
+
 def test_a_step_seen_first_in_another_parameter_is_taken_up_at_once():
     """Windows across a step of Ra move K's fits as well (the two trade off where the
     current and speed barely vary), and K's step test may alarm first. Its change is not
@@ -484,15 +499,7 @@ def test_a_step_seen_first_in_another_parameter_is_taken_up_at_once():
     events, notes = [], []
     for i in range(300):
         t = (i + 1) * 0.1
-        truth = _mixed("Ra", 0.03, step_at, t)
-        window = fits(truth)
-        f = min(1.0, max(0.0, (t - step_at) / 1.0))
-        # K's fits dip while the windows straddle the step.
-        k = window["K"]
-        window["K"] = Evidence(k.value * (1.0 - 0.02 * math.sin(math.pi * f)), k.rel_std)
-        err = math.log(window["Ra"].value / truth["Ra"]) * rel / REL_STD["Ra"]
-        window["Ra"] = Evidence(truth["Ra"] * math.exp(err), rel)
-        step = trk.step(int(round(t * 1e9)), window)
+        step = trk.step(int(round(t * 1e9)), _ra_step_seen_by_k(fits, t, step_at, rel))
         events += step.changes
         notes += step.notes
     assert any(n.startswith("K: a change was signalled") for n in notes), notes
@@ -512,10 +519,7 @@ def test_a_change_taken_up_from_another_waits_for_windows_that_show_it():
     events, notes = [], []
     for i in range(300):
         t = (i + 1) * 0.1
-        window = fits(_mixed("Ra", 0.03, step_at, t))
-        f = min(1.0, max(0.0, (t - step_at) / 1.0))
-        k = window["K"]
-        window["K"] = Evidence(k.value * (1.0 - 0.02 * math.sin(math.pi * f)), k.rel_std)
+        window = _ra_step_seen_by_k(fits, t, step_at)
         if 21.45 < t < 22.0:  # nothing of Ra right after K's change is dropped (21.4 s)
             del window["Ra"]
         step = trk.step(int(round(t * 1e9)), window)
