@@ -27,6 +27,7 @@ import argparse
 import functools
 import sys
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -103,11 +104,12 @@ def _drive(name: str, rate: float = 2000.0):  # type: ignore[no-untyped-def]
 
 def _daemon_holds(
     sig: dict[str, np.ndarray], dt: float, win: int, hop: int, armature_model: str
-) -> list[tuple[bool, bool]]:
+) -> list[tuple[bool, bool, Any]]:
     """Per window, whether the daemon holds (field, armature) for its voltage reading's
     linearity (:mod:`observer.estimation.linearity`): tested over the last
     ``WATCH_SECONDS`` every ``RETEST_SECONDS``, the result used 1.5 s later (the daemon's
-    ``FILTER_DUE_S``), and before the first result a measured voltage no bridge made held."""
+    ``FILTER_DUE_S``), and before the first result a measured voltage no bridge made held;
+    and the fold the daemon takes out of the window's armature voltage (or None)."""
     from observer.estimation.linearity import (
         RETEST_SECONDS,
         WATCH_SECONDS,
@@ -127,19 +129,22 @@ def _daemon_holds(
         )
         if result is not None:
             tests.append((end + int(round(1.5 / dt)), result))
+    # The daemon stops the test for good once a window shows a bridge's ripple.
+    bridge = made_by_a_bridge(sig["va"][:win], dt)
     out = []
     for start in range(0, n - win + 1, hop):
         end = start + win
         s = slice(start, end)
         known = [r for due, r in tests if due <= end]
         result = known[-1] if known else None
-        if not applies_to(armature_model):
-            out.append((False, False))
+        if bridge or not applies_to(armature_model):
+            out.append((False, False, None))
         elif result is None:
             measured = armature_model == "smooth" and not made_by_a_bridge(sig["va"][s], dt)
-            out.append((measured and not made_by_a_bridge(sig["vf"][s], dt), measured))
+            out.append((measured and not made_by_a_bridge(sig["vf"][s], dt), measured, None))
         else:
-            out.append((bool(field_note(result, sig["vf"][s], dt)), not result.linear))
+            held = (bool(field_note(result, sig["vf"][s], dt)), not result.linear)
+            out.append((*held, result.correction))
     return out
 
 
@@ -229,13 +234,15 @@ def run_case(
     for i, start in enumerate(range(0, n - win + 1, hop)):
         s = slice(start, start + win)
         kw_w = dict(n_particles=40, max_iterations=40, rng=i, fit_shift=False)
+        fold = held[i][2]
+        va = sig["va"][s] if fold is None else sig["va"][s] - fold.of_samples(sig["va"][s], dt)
         f = estimate_field(
             sig["vf"][s], sig["if"][s], dt, intersample=whole_f.intersample,
             shift=whole_f.shift_samples, front_ends=fe["field"], mismatch=learned["field"],
             **told["field"], **kw_w,
         )  # fmt: skip
         a = estimate_armature(
-            sig["va"][s], sig["ia"][s], sig["if"][s], sig["omega"][s], dt,
+            va, sig["ia"][s], sig["if"][s], sig["omega"][s], dt,
             intersample=whole_a.intersample, shift=whole_a.shift_samples,
             front_ends=fe["armature"], mismatch=learned["armature"],
             **told["armature"], **kw_w,

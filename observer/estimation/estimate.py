@@ -30,6 +30,7 @@ from observer.estimation.linearity import (
     Linearity,
     applies_to,
     field_note,
+    made_by_a_bridge,
     nonlinear_note,
     voltage_linearity,
 )
@@ -92,38 +93,7 @@ def estimate_recording(
         if circuit not in CIRCUIT_CHANNELS:
             raise EstimationError(f"unknown circuit {circuit!r}; expected one of {CIRCUITS}")
         rec.require(*CIRCUIT_CHANNELS[circuit], path=path, purpose=f"the {circuit} circuit")
-        # One seed per circuit, so estimating one circuit alone gives the same numbers.
-        rng = np.random.default_rng([cfg.seed, CIRCUITS.index(circuit)])
-        prefix = f"{path}: " if path else ""
-        chain_kw: dict[str, Any] = {
-            "intersample": chain.intersample if chain is not None else "auto",
-            "front_ends": winding_front_ends(chain, circuit),
-        }
-        fit = None
-        if (
-            circuit in IDENTIFIED_WINDINGS
-            and chain_kw["front_ends"] is None
-            and chain_kw["intersample"] in ("auto", "smooth")
-        ):
-            fit = voltage_filter(rec, circuit, prefix)
-            chain_kw["voltage_alias"] = fit.alias
-            if fit.alias is not None:
-                chain_kw["identified_filter"] = fit.best
-        try:
-            first = _estimate(circuit, rec, rng, cfg, common, chain_kw)
-            est = with_learned_mismatch(
-                first,
-                lambda circuit=circuit, chain_kw=chain_kw, **kw: _estimate(
-                    circuit, rec, np.random.default_rng([cfg.seed, CIRCUITS.index(circuit)]),
-                    cfg, common, chain_kw | kw,
-                ),
-                noisier=functools.partial(_noisier, circuit, rec, cfg, common, chain_kw),
-            )  # fmt: skip
-        except EstimationError as exc:
-            raise EstimationError(f"{prefix}{circuit} circuit: {exc}") from None
-        if fit is not None and est.intersample == "smooth":
-            est = dataclasses.replace(est, voltage_filter={**fit.to_dict(), "text": fit.text})
-        out[circuit] = est
+        out[circuit] = _estimate_circuit(circuit, rec, cfg, common, chain, path)
     if "armature" in out:
         # The armature voltage reading's linearity over the recording
         # (:mod:`~observer.estimation.linearity`): a reading that follows a curve of the
@@ -134,10 +104,61 @@ def estimate_recording(
             if applies_to(out["armature"].intersample)
             else None
         )
+        fold = result.correction if result is not None else None
+        va = np.asarray(rec["va"], dtype=float)
+        if (
+            fold is not None
+            and out["armature"].intersample == "smooth"
+            and not made_by_a_bridge(va, rec.dt)
+        ):
+            # A converter's pulses folded onto zero frequency, periodic in the voltage: taken
+            # out of the reading, and the armature estimated again from it (a bridge's jumps
+            # are put back between the samples instead, their fold with them).
+            corrected = _WithVoltage(rec, "va", va - fold.of_samples(va, rec.dt))
+            out["armature"] = _estimate_circuit("armature", corrected, cfg, common, chain, path)
         out["armature"] = with_linearity(out["armature"], result)
         if "field" in out:
             out["field"] = not_described(out["field"], field_note(result, rec["vf"], rec.dt))
     return out
+
+
+def _estimate_circuit(
+    circuit: str, rec: Any, cfg: Any, common: dict[str, Any], chain: Any, path: str | None
+) -> CircuitEstimate:
+    """One circuit's estimate of :func:`estimate_recording`: its untold voltage filter
+    identified, the estimate, and again where untold channels differ."""
+    # One seed per circuit, so estimating one circuit alone gives the same numbers.
+    rng = np.random.default_rng([cfg.seed, CIRCUITS.index(circuit)])
+    prefix = f"{path}: " if path else ""
+    chain_kw: dict[str, Any] = {
+        "intersample": chain.intersample if chain is not None else "auto",
+        "front_ends": winding_front_ends(chain, circuit),
+    }
+    fit = None
+    if (
+        circuit in IDENTIFIED_WINDINGS
+        and chain_kw["front_ends"] is None
+        and chain_kw["intersample"] in ("auto", "smooth")
+    ):
+        fit = voltage_filter(rec, circuit, prefix)
+        chain_kw["voltage_alias"] = fit.alias
+        if fit.alias is not None:
+            chain_kw["identified_filter"] = fit.best
+    try:
+        first = _estimate(circuit, rec, rng, cfg, common, chain_kw)
+        est = with_learned_mismatch(
+            first,
+            lambda circuit=circuit, chain_kw=chain_kw, **kw: _estimate(
+                circuit, rec, np.random.default_rng([cfg.seed, CIRCUITS.index(circuit)]),
+                cfg, common, chain_kw | kw,
+            ),
+            noisier=functools.partial(_noisier, circuit, rec, cfg, common, chain_kw),
+        )  # fmt: skip
+    except EstimationError as exc:
+        raise EstimationError(f"{prefix}{circuit} circuit: {exc}") from None
+    if fit is not None and est.intersample == "smooth":
+        est = dataclasses.replace(est, voltage_filter={**fit.to_dict(), "text": fit.text})
+    return est
 
 
 def voltage_filter(rec: Any, circuit: str, prefix: str = "") -> FilterFit:
@@ -168,18 +189,23 @@ def simex_noise(n: int, var: float) -> np.ndarray:
     return np.random.default_rng(SIMEX_SEED).standard_normal(n) * math.sqrt(var)
 
 
-class _WithVoltageNoise:
-    """A recording whose ``channel`` carries white noise of variance ``var`` (V^2) more."""
+class _WithVoltage:
+    """A recording whose ``channel`` reads ``values`` instead."""
 
-    def __init__(self, rec: Any, channel: str, var: float) -> None:
+    def __init__(self, rec: Any, channel: str, values: np.ndarray) -> None:
         self._rec = rec
         self._channel = channel
-        x = np.asarray(rec[channel], dtype=float)
-        self._noisy = x + simex_noise(x.shape[0], var)
+        self._values = values
         self.dt = rec.dt
 
     def __getitem__(self, name: str) -> Any:
-        return self._noisy if name == self._channel else self._rec[name]
+        return self._values if name == self._channel else self._rec[name]
+
+
+def _with_voltage_noise(rec: Any, channel: str, var: float) -> _WithVoltage:
+    """``rec`` whose ``channel`` carries white noise of variance ``var`` (V^2) more."""
+    x = np.asarray(rec[channel], dtype=float)
+    return _WithVoltage(rec, channel, x + simex_noise(x.shape[0], var))
 
 
 def with_learned_mismatch(
@@ -238,7 +264,7 @@ def _noisier(
     circuit: str, rec: Any, cfg: Any, common: dict[str, Any], chain_kw: dict[str, Any], var: float
 ) -> CircuitEstimate:
     """The circuit's estimate with white noise of variance ``var`` (V^2) more on its voltage."""
-    noisy = _WithVoltageNoise(rec, CIRCUIT_CHANNELS[circuit][0], var)
+    noisy = _with_voltage_noise(rec, CIRCUIT_CHANNELS[circuit][0], var)
     rng = np.random.default_rng([cfg.seed, CIRCUITS.index(circuit)])
     # Only its mismatch_size is used: the std's operating-point refits would be wasted.
     return _estimate(circuit, noisy, rng, cfg, common | {"split_by_voltage": False}, chain_kw)

@@ -81,6 +81,7 @@ from observer.estimation.frontend import applied_mismatch, winding_front_ends
 from observer.estimation.linearity import (
     RETEST_SECONDS,
     WATCH_SECONDS,
+    Fold,
     Linearity,
     LinearityAccumulator,
     applies_to,
@@ -496,6 +497,11 @@ class SlidingWindowObserver:
         }
         signals = dict(window.signals)
         self._watch_linearity(window, period_s, index)
+        fold = self._fold()
+        if fold is not None:
+            # The converter's pulses folded onto the reading: taken out for everything that
+            # reads the armature voltage (its estimate, the EMF speed).
+            signals["va"] = signals["va"] - fold.of_samples(signals["va"], period_s)
         flags: list[str] = []
         fits: dict[str, CircuitEstimate | None] = {}
         # Each circuit's estimate from the state before this window: prepared first, run
@@ -610,6 +616,14 @@ class SlidingWindowObserver:
             job = self._identifier.submit(acc.snapshot(armature=True))
             self._linearity_pending = (job, index + self._filter_due)
 
+    def _fold(self) -> Fold | None:
+        """The converter's pulses folded onto the armature voltage's reading, to be taken out of
+        its samples (:attr:`~observer.estimation.linearity.Linearity.correction`), or None."""
+        result = self.voltage_linearity
+        if result is None or self._armature_bridge:
+            return None
+        return result.correction
+
     def _bridge_seen(self, va: np.ndarray, period_s: float) -> bool:
         """Whether the window's armature voltage ``va`` shows a bridge's ripple; then the
         linearity test stops for good. It was built for a chopper's pulses sampled in step with
@@ -652,6 +666,15 @@ class SlidingWindowObserver:
                 result.seconds, "linear" if result.linear else "NOT linear", result.curve_v,
                 100 * result.size, 100 * result.share,
                 "" if result.linear else "; its windows are held",
+            )  # fmt: skip
+        fold = result.correction
+        before = self.voltage_linearity.correction if self.voltage_linearity is not None else None
+        if fold is not None and before is None:
+            log.info(
+                "armature voltage reading: a converter's pulses fold onto it as a curve "
+                "periodic in the voltage (period %.0f V, %.2g V rms, %.0f %% of the slow "
+                "equation error); taken out of the samples before the armature is estimated",
+                fold.period_v, fold.rms_v, 100 * fold.share,
             )  # fmt: skip
         self.voltage_linearity = result
 

@@ -571,6 +571,31 @@ def test_a_voltage_reading_that_follows_a_curve_holds_the_armature():
     assert all(not a["describes_window"] for a in before if a["chain"]["intersample"] == "smooth")
 
 
+def test_pulses_folded_onto_the_reading_are_taken_out_of_the_windows(caplog):
+    """The 440 V motor behind a chopper sampled at 10 kHz: its pulses' 5th harmonic folds onto
+    the reading as a curve periodic in the voltage, too small to hold the armature for. Once
+    the first test has fitted it, every window's armature voltage is read without it (and
+    said so once in the log); the windows are described."""
+    from bench.window_honesty import _drive
+    from observer.estimation.motor import MOTORS
+    from observer.simulation.converter_drive import simulate_converter
+
+    rec, _ = simulate_converter(
+        MOTORS["industrial-440v"], _drive("chopper", 10000.0), duration_s=12.5,
+        sample_rate_hz=10000.0, noise=0.002, seed=0,
+    )  # fmt: skip
+    caplog.set_level("INFO", logger="observer")
+    obs, results = _run(_blocks(rec), circuits="armature")
+    verdict = obs.health()["voltage_linearity"]
+    assert verdict is not None and verdict["linear"] is True
+    assert verdict["fold"]["taken_out"] is True and verdict["fold"]["share"] > 0.8
+    assert 150.0 < verdict["fold"]["period_v"] < 300.0  # 2 V_dc / 5
+    lines = [r.getMessage() for r in caplog.records if "fold onto it" in r.getMessage()]
+    assert len(lines) == 1 and "taken out of the samples" in lines[0]
+    after = [r.estimate["armature"] for r in results if r.t1_ns > 11.75e9]
+    assert after and all(a["describes_window"] for a in after)
+
+
 @pytest.mark.parametrize("drive", ["thyristor", "chopper"])
 def test_a_change_of_the_motor_is_not_read_as_a_curve_of_the_voltage(drive):
     """A field fault (K -5 % at 15 s, after the first linearity test), the drive running
