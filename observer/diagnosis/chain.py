@@ -40,6 +40,12 @@ Three findings come from the front end alone, whatever the motor does:
     winding would at that frequency (a chopper's pulses above the Nyquist frequency, seen at
     their alias: 4 kHz sampled at 5 kHz reads 1 kHz); the estimator and the diagnosis leave
     that band out (:mod:`observer.estimation.lines`).
+``pulses_folded``
+    The armature's voltage reading is off by a curve periodic in the voltage: a converter's
+    pulse harmonic on a multiple of the sample rate (a 2 kHz chopper's 4 kHz pulses at 10
+    kHz: the 5th on 2 fs), folded onto zero frequency by a filter that leaves a little of
+    it (:class:`~observer.estimation.linearity.Fold`). Small enough to be fitted; the
+    estimator and the diagnosis take it out of the reading.
 ``voltage_folded``
     The armature's voltage samples follow a curve of the voltage, not the voltage: a
     converter's pulses sampled in step with the ADC fold onto zero frequency
@@ -67,7 +73,7 @@ from observer.estimation.intersample import (
     find_switching,
     pwm_level_changes,
 )
-from observer.estimation.linearity import Linearity
+from observer.estimation.linearity import Fold, Linearity
 
 #: Line content in the top eighth-band below Nyquist at least this share of the one below
 #: it: the spectrum does not fall towards Nyquist (a filter of order n at fs/4 gives about
@@ -330,6 +336,30 @@ def aliased_finding(
         "the diagnosis",
         ALIASED_ADVICE.format(ch=voltage, cur=current),
     )
+
+
+def pulses_folded_finding(channel: str, fold: Fold | None) -> ChainFinding | None:
+    """``pulses_folded`` for the ``fold`` taken out of ``channel`` (None: none was)."""
+    if fold is None:
+        return None
+    return ChainFinding(
+        channel,
+        "pulses_folded",
+        f"measurement chain: {channel} is off by a curve periodic in the voltage (period "
+        f"{fold.period_v:.0f} V, {fold.rms_v:.2g} V rms, {100 * fold.share:.0f} % of the slow "
+        "error of the winding's equation): a converter's pulse harmonic on a multiple of the "
+        "sample rate, folded onto zero frequency; it was taken out of the reading before the "
+        "estimate and the diagnosis",
+        PULSES_FOLDED_ADVICE.format(ch=channel),
+    )
+
+
+#: Advice of a chain finding of kind ``pulses_folded``.
+PULSES_FOLDED_ADVICE = (
+    "nothing is needed for the estimate; to read {ch} without the fold, measure it averaged over "
+    "each sample period (an integrating ADC) or filter it more steeply, and configure it in "
+    "[chain.{ch}]"
+)
 
 
 #: Advice of a chain finding of kind ``voltage_folded``.

@@ -292,11 +292,13 @@ def field_note(armature: Linearity | None, field_voltage: np.ndarray, dt: float)
 
 #: The motor's own curves, as block means beside the voltage's powers (armature only): the
 #: flux as a cubic in the field current (saturation) and, times it, in the armature current
-#: (armature reaction; a speed sensor's load-dependent error), each times the speed, and the
-#: speed times the armature current. Taken out first, they leave a curve of the voltage only
-#: what depends on the voltage itself (armature reaction 5 %: 0.81 % of the largest voltage
-#: without them, 0.04 % with them).
-MOTOR_TERMS = 7
+#: (armature reaction; a speed sensor's load-dependent error), each times the speed, the
+#: speed times the armature current, and the sign of the armature current (a brush drop).
+#: Taken out first, they leave a curve of the voltage only what depends on the voltage itself
+#: (armature reaction 5 %: 0.81 % of the largest voltage without them, 0.04 % with them; a
+#: brush drop of 1 V behind a chopper at 10 kHz kept the pulses' fold below
+#: :data:`FOLD_SHARE` of what was left, and the diagnosis read the fold as unexplained).
+MOTOR_TERMS = 8
 
 
 #: Below this frequency (Hz) a bridge's ripple is looked for: its pulse rate and first
@@ -398,6 +400,7 @@ class LinearityAccumulator:
         motor[:, 4] = emf * i * i
         motor[:, 5] = emf * i * i * i
         motor[:, 6] = w * i
+        motor[:, 7] = np.sign(i)
         if self._carry is not None:
             cols = np.concatenate([self._carry, cols])
         n = (cols.shape[0] // self.block) * self.block

@@ -224,6 +224,27 @@ def test_a_chopper_sampled_in_step_with_its_pulses_is_a_chain_finding_not_a_moto
     assert "ia residual" not in diag.description, diag.description
 
 
+def test_a_healthy_motor_behind_a_chopper_at_10_khz_is_none_its_folded_pulses_taken_out():
+    """At 10 kHz the chopper's 4 kHz pulses fold through their 5th harmonic (2 fs) onto va as
+    a curve periodic in the voltage; its slope at the reversals, a gain error of 2-3 %, read as
+    an ia residual periodic in shaft angle (``unexplained``). Taken out of va, the motor is
+    ``none`` and the chain says what was taken out."""
+    from bench.accuracy_rates import drive_spec
+
+    rec = simulate(
+        P12, duration_s=10.0, sample_rate_hz=10_000.0, seed=0, drive=drive_spec("chopper"),
+        drive_name="chopper",
+    )  # fmt: skip
+    diag = diagnose(rec)
+    assert diag.verdict == NONE, diag.description
+    folded = [f for f in diag.chain if f.kind == "pulses_folded"]
+    assert len(folded) == 1 and folded[0].channel == "va"
+    assert "periodic in the voltage" in folded[0].description
+    assert not any(f.kind == "voltage_folded" for f in diag.chain)
+    # A bridge's voltage is never tested for a fold.
+    assert not any(f.kind == "pulses_folded" for f in diagnose(_recording()).chain)
+
+
 def test_eddy_currents_are_not_named_where_the_channels_read_skewed():
     """Voltages through a 4th-order filter at fs/3 beside 2nd-order currents at fs/4, at 10 kHz:
     the channels read skewed, and their filters' difference leaves the second, faster time
