@@ -165,7 +165,7 @@ def run_case(
     from observer.simulation.converter_drive import simulate_converter
 
     motor = MOTORS[case.motor]
-    from observer.estimation.estimate import with_learned_mismatch
+    from observer.estimation.estimate import with_field_fold, with_learned_mismatch
     from observer.estimation.filter_id import IDENTIFIED_WINDINGS, identify_voltage_filter
     from observer.estimation.frontend import winding_front_ends
 
@@ -241,6 +241,7 @@ def run_case(
             shift=whole_f.shift_samples, front_ends=fe["field"], mismatch=learned["field"],
             **told["field"], **kw_w,
         )  # fmt: skip
+        f = with_field_fold(f, fold, sig["vf"][s], dt)
         a = estimate_armature(
             va, sig["ia"][s], sig["if"][s], sig["omega"][s], dt,
             intersample=whole_a.intersample, shift=whole_a.shift_samples,

@@ -136,6 +136,9 @@ class Fold:
         Share of the slow equation error's power (after the motor's own terms) it explains.
     residual_v : float
         RMS of the slow equation error left after it (V): what the correction cannot vouch for.
+    largest_v : float
+        The largest |voltage| of the data it was fitted on (V): about the converter's supply,
+        to which the pulses' harmonics, and so the fold, are proportional.
     """
 
     period_v: float
@@ -143,6 +146,7 @@ class Fold:
     rms_v: float
     share: float
     residual_v: float
+    largest_v: float = math.nan
 
     @property
     def usable(self) -> bool:
@@ -153,6 +157,12 @@ class Fold:
         """The fold at each *mean* voltage (V): a function of the duty, not of a sample."""
         v = np.asarray(voltage, dtype=np.float64)
         return np.asarray(_fold_columns(v, self.period_v) @ np.asarray(self.coefficients))
+
+    @property
+    def peak_v(self) -> float:
+        """The fold's largest size over a period (V)."""
+        v = np.linspace(0.0, self.period_v, 257)
+        return float(np.max(np.abs(self(v))))
 
     def of_samples(self, voltage: np.ndarray, dt: float) -> np.ndarray:
         """The fold to subtract from each of contiguous samples ``voltage`` (V; period ``dt``
@@ -552,6 +562,7 @@ def _fit_fold(
         rms_v=math.sqrt(gain),
         share=min(gain / p0, 1.0),
         residual_v=math.sqrt(max(p0 - gain, 0.0)),
+        largest_v=largest,
     )
 
 

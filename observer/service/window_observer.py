@@ -71,7 +71,12 @@ from observer.estimation import (
     estimate_field,
     field_search_range,
 )
-from observer.estimation.estimate import not_described, simex_noise, with_linearity
+from observer.estimation.estimate import (
+    not_described,
+    simex_noise,
+    with_field_fold,
+    with_linearity,
+)
 from observer.estimation.filter_id import (
     IDENTIFIED_WINDINGS,
     FilterFit,
@@ -523,6 +528,8 @@ class SlidingWindowObserver:
                 fit = self._remote_result(prep) if circuit == remote else run_estimator(prep)
                 self._finish_circuit(prep, fit)
                 fit = self._with_linearity(circuit, fit, signals, period_s)
+                if circuit == "field":
+                    fit = with_field_fold(fit, self._fold(), signals["vf"], period_s)
                 fits[circuit] = fit
             except _ESTIMATION_ERRORS as exc:
                 self.counts[f"{circuit}_failed"] += 1

@@ -213,3 +213,28 @@ def test_a_reversal_window_is_right_once_the_fold_is_taken_out():
         ]
     assert ok["raw"][0] > 4.0
     assert max(ok["taken out"]) < 2.0
+
+
+def test_a_field_chopper_beside_a_folded_armature_carries_the_fold_as_an_offset():
+    """The field's steady voltage cannot show a fold: it is an offset that Rf takes up whole.
+    Beside an armature whose fold was fitted, the field's Rf std carries the fold's peak,
+    scaled to the field's voltage, shared by the windows at that level; a field bridge's is
+    left as it is, and so is every field without a fold."""
+    from observer.estimation import estimate_field
+    from observer.estimation.estimate import with_field_fold
+
+    rec, _ = _chopper_at_10_khz()
+    s = {c: np.asarray(rec[c], dtype=float) for c in ("va", "ia", "vf", "if", "omega")}
+    fold = voltage_linearity(s["va"], s["ia"], rec.dt, s["if"], s["omega"]).correction
+    w = slice(0, 10_000)
+    est = estimate_field(s["vf"][w], s["if"][w], rec.dt, n_particles=30, max_iterations=30, rng=0)
+    wide = with_field_fold(est, fold, s["vf"][w], rec.dt)
+    peak = fold.peak_v * np.percentile(np.abs(s["vf"][w]), 99.0) / fold.largest_v
+    move = est.resistance_ohm * peak / np.mean(np.abs(s["vf"][w]))
+    assert wide.std["R"] == pytest.approx(np.hypot(est.std["R"], move), rel=1e-9)
+    assert wide.shared_std["R"] >= move
+    assert wide.std["L"] == est.std["L"]
+    assert with_field_fold(est, None, s["vf"][w], rec.dt) is est
+    bridge = _bridge_field_recording()
+    vf = np.asarray(bridge.signals["vf"][:4000], dtype=float)
+    assert with_field_fold(est, fold, vf, bridge.dt) is est
