@@ -103,6 +103,9 @@ FOLD_PERIODS = (1.0 / 15.0, 4.0)
 #: Candidate periods on the coarse grid (geometric), before the best is refined.
 FOLD_GRID = 400
 
+#: Blocks averaged together for the period search (200 Hz -> 50 Hz).
+FOLD_DECIMATE = 4
+
 #: A fold explaining at least this share of the slow equation error that the motor's own terms
 #: leave is taken out of the voltage (:attr:`Fold.usable`). Measured (30 s, both motors,
 #: seeds 0-2): a chopper at 10 kHz behind Butterworth filters 0.95-0.98, at 5 kHz 0.59-0.64;
@@ -511,7 +514,7 @@ def _test(rows: np.ndarray, scale: float, dt_block: float, *, armature: bool) ->
     p0, p1 = float(np.mean(r0**2)), float(np.mean(r1**2))
     if not p0 > 0:
         return Linearity(0.0, 0.0, largest, seconds)
-    fold = _fit_fold(v, r0, np.linalg.qr(a0)[0], smooth, keep, largest) if armature else None
+    fold = _fit_fold(v, r0, a0, keep, dt_block, largest) if armature else None
     return Linearity(
         curve_v=math.sqrt(max(p0 - p1, 0.0)),
         share=max(0.0, 1.0 - p1 / p0),
@@ -522,28 +525,43 @@ def _test(rows: np.ndarray, scale: float, dt_block: float, *, armature: bool) ->
 
 
 def _fit_fold(
-    v: np.ndarray,
-    r0: np.ndarray,
-    q0: np.ndarray,
-    smooth: Callable[[np.ndarray], np.ndarray],
-    keep: slice,
-    largest: float,
+    v: np.ndarray, r0: np.ndarray, a0: np.ndarray, keep: slice, dt_block: float, largest: float
 ) -> Fold | None:
     """The :class:`Fold` that explains most of ``r0``, the slow equation error left by the
-    motor's terms (orthonormal basis ``q0``), over the block means ``v`` (V): its period
-    searched over :data:`FOLD_PERIODS` on a geometric grid, then refined between the best
-    one's neighbours. The fold acts on the samples; taken at the blocks' mean voltage it is
-    within a few percent of that at a 200 Hz block (the voltage moves far less than a period
-    within 5 ms)."""
-    p0 = float(np.mean(r0**2))
+    motor's terms (the columns ``a0``), over the block means ``v`` (V; ``keep``: the blocks
+    ``r0`` and ``a0`` hold, ``dt_block`` apart): its period searched over
+    :data:`FOLD_PERIODS` on a geometric grid, then refined between the best one's neighbours.
+    The fold acts on the samples; taken at the blocks' mean voltage it is within a few percent
+    of that at a 200 Hz block (the voltage moves far less than a period within 5 ms). The
+    search runs on means of :data:`FOLD_DECIMATE` blocks (everything is below
+    :data:`LOW_HZ` by then): the candidates' low-pass is most of its cost."""
+    from scipy.signal import butter, filtfilt
+
+    step = FOLD_DECIMATE
+    start = keep.start or 0
+    count = (r0.shape[0] // step) * step
+
+    def decimated(x: np.ndarray) -> np.ndarray:
+        return np.asarray(x[:count].reshape(count // step, step, *x.shape[1:]).mean(axis=1))
+
+    nyquist = 0.5 / (dt_block * step)
+    b, a = butter(2, min(LOW_HZ / nyquist, 0.9))
+    r = decimated(r0)
+    q = np.linalg.qr(decimated(a0))[0]
+    r -= q @ (q.T @ r)
+    p0 = float(np.mean(r**2))
+    if not p0 > 0:
+        return None
 
     def explained(periods: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
         gains, coefs = np.empty(periods.shape[0]), []
         for j, period in enumerate(periods):
-            cols = smooth(_fold_columns(v, float(period)))[keep]
-            cols -= q0 @ (q0.T @ cols)
-            coef = np.linalg.lstsq(cols, r0, rcond=None)[0]
-            gains[j] = p0 - float(np.mean((r0 - cols @ coef) ** 2))
+            # Block means of the columns over the kept stretch, then the low-pass.
+            cols = _fold_columns(v[start : start + count], float(period))
+            cols = filtfilt(b, a, decimated(cols), axis=0)
+            cols -= q @ (q.T @ cols)
+            coef = np.linalg.lstsq(cols, r, rcond=None)[0]
+            gains[j] = p0 - float(np.mean((r - cols @ coef) ** 2))
             coefs.append(coef)
         return gains, coefs
 
