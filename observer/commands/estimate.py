@@ -311,6 +311,15 @@ def _notes(
                 f"{c} voltage filter (front ends not configured): not identified "
                 f"({fit['reason']}); an RC at fs/4, the weakest in use, assumed"
             )
+    linearity = (report.get("armature") or {}).get("voltage_linearity") or {}
+    fold = linearity.get("fold") if isinstance(linearity, dict) else None
+    if isinstance(fold, dict) and fold.get("taken_out"):
+        lines.append(
+            "armature voltage: a converter's pulses fold onto the reading as a curve periodic "
+            f"in the voltage (period {fold['period_v']:.0f} V, {fold['rms_v']:.2g} V rms, "
+            f"{100 * fold['share']:.0f} % of the slow equation error); taken out of the samples "
+            "before the armature was estimated"
+        )
     for c, values in report.items():
         part = values.get("operating_point_std") or {}
         # Named where it is most of the std (over a quarter of its variance).

@@ -639,3 +639,24 @@ def test_parameters_not_identified_for_one_reason_are_named_together():
     line = _notes(report, limits, [])[0]
     assert line.count(why) == 1
     assert f"Ra, La, K ({why})" in line and "Lf (relative std 3 %)" in line
+
+
+def test_the_estimate_says_when_it_took_a_converters_folded_pulses_out_of_the_reading():
+    """A chopper's pulses folded onto the armature reading are taken out before the estimate
+    (``linearity.Fold``): the notes say so, with the fold's period and size; a reading without
+    one taken out says nothing of it."""
+    from observer.commands.estimate import _notes
+
+    fold = {"period_v": 211.4, "rms_v": 0.57, "share": 0.98, "residual_v": 0.08, "taken_out": True}
+    report = {
+        "armature": {
+            "not_identified": {},
+            "quality": {"R": "ok"},
+            "voltage_linearity": {"fold": fold},
+        }
+    }
+    limits = {"armature": {"R": 0.008, "L": 0.02, "K": 0.004}}
+    said = [line for line in _notes(report, limits, []) if "fold onto the reading" in line]
+    assert len(said) == 1 and "period 211 V" in said[0] and "98 %" in said[0]
+    report["armature"]["voltage_linearity"]["fold"] = {**fold, "taken_out": False}
+    assert not [line for line in _notes(report, limits, []) if "fold onto" in line]
