@@ -66,6 +66,12 @@ def _drive(name: str, rate: float = 2000.0):  # type: ignore[no-untyped-def]
         for ch in ("va", "vf"):
             chain = chain.with_channel(ch, averaging=True)
         return drive_spec("chopper").replace(chain=chain)
+    if name == "chopper-rc-voltages":
+        # The chopper behind RC voltage filters at fs/4 beside the Butterworth currents.
+        chain = MeasurementChain.uniform(REALISTIC_CHANNEL)
+        for ch in ("va", "vf"):
+            chain = chain.with_channel(ch, filter="rc", order=1)
+        return drive_spec("chopper").replace(chain=chain)
     if name == "no-filter":
         return drive_spec("thyristor").replace(
             chain=MeasurementChain.uniform(ChannelChain(bits=12))
@@ -291,7 +297,8 @@ def main(argv: list[str] | None = None) -> int:
         help="drives: realistic, no-filter, chopper, rc1-voltages, bare-voltages, and front "
         "ends not tuned on: rc1-currents, bessel4-currents, butter4-fs3-currents, "
         "bessel2-voltages, fs8-voltages, rc1-fs8-voltages; chopper-averaged-voltages (the "
-        "chopper with its voltages measured as means over each period); thyristor-VARIANT "
+        "chopper with its voltages measured as means over each period), chopper-rc-voltages "
+        "(behind RC voltage filters at fs/4); thyristor-VARIANT "
         "for a variant of bench.accuracy_rates (thyristor-60hz, thyristor-overlap, "
         "thyristor-skew, thyristor-16bit, thyristor-bessel4, thyristor-butter4-v)",
     )  # fmt: skip

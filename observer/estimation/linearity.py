@@ -48,6 +48,7 @@ curve allowed, the field's ``R`` and ``L`` moved by 50-100 % (the curve takes ``
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable
@@ -106,6 +107,11 @@ FOLD_GRID = 400
 #: Blocks averaged together for the period search (200 Hz -> 50 Hz).
 FOLD_DECIMATE = 4
 
+#: Periods the voltages must span for a fold to explain a curve away (:attr:`Fold.pinned`):
+#: a chopper's 5th harmonic folded at 10 kHz spans 4.6-4.9 of them on both motors, one sampled
+#: in step 0.5-1.0 (the 440 V motor's at 8 kHz: 2.0).
+FOLD_PINNED = 3.0
+
 #: A fold explaining at least this share of the slow equation error that the motor's own terms
 #: leave is taken out of the voltage (:attr:`Fold.usable`). Measured (30 s, both motors,
 #: seeds 0-2): a chopper at 10 kHz behind Butterworth filters 0.95-0.98, at 5 kHz 0.59-0.64;
@@ -142,6 +148,8 @@ class Fold:
     largest_v : float
         The largest |voltage| of the data it was fitted on (V): about the converter's supply,
         to which the pulses' harmonics, and so the fold, are proportional.
+    span_v : float
+        The range of the voltages it was fitted over (V, 0.5th to 99.5th percentile).
     """
 
     period_v: float
@@ -150,6 +158,16 @@ class Fold:
     share: float
     residual_v: float
     largest_v: float = math.nan
+    span_v: float = math.nan
+
+    @property
+    def pinned(self) -> bool:
+        """Whether the voltages span :data:`FOLD_PINNED` periods or more: the fold's linear
+        part, a gain the parameters would take up, is then set by its periodic shape. A fold
+        of a pulse train sampled in step (the fundamental on a multiple of fs: periods of
+        1.9-4 times the largest voltage) is mostly such a gain, and is not taken for one that
+        can be taken out."""
+        return self.period_v * FOLD_PINNED <= self.span_v
 
     @property
     def usable(self) -> bool:
@@ -224,6 +242,7 @@ class Linearity:
     largest_v: float
     seconds: float
     fold: Fold | None = None
+    after_fold: tuple[float, float] | None = None
 
     @property
     def correction(self) -> Fold | None:
@@ -234,15 +253,28 @@ class Linearity:
         return fold if fold is not None and fold.usable and self.linear else None
 
     @property
+    def linear_as_read(self) -> bool:
+        """Whether the reading, fold and all, shows no curve (:data:`CURVE_SHARE`,
+        :data:`CURVE_SIZE`, :data:`CURVE_ALONE`)."""
+        return _no_curve(self.curve_v, self.share, self.largest_v)
+
+    @property
     def size(self) -> float:
         """The curve as a share of the largest voltage (0 where there is none)."""
         return self.curve_v / self.largest_v if self.largest_v > 0 else 0.0
 
     @property
     def linear(self) -> bool:
-        """False when the reading carries a static curve that is not the sensor's."""
-        size = self.size
-        return not ((self.share >= CURVE_SHARE and size >= CURVE_SIZE) or size >= CURVE_ALONE)
+        """False when the reading carries a static curve that is not the sensor's and that no
+        usable, pinned fold (:attr:`Fold.pinned`) explains: behind RC voltage filters a
+        chopper's fold at 10 kHz read as a curve of 0.37-0.49 % of the largest voltage (held),
+        0.02-0.05 % once the fold was fitted beside it."""
+        if self.linear_as_read:
+            return True
+        fold = self.fold
+        if fold is None or not (fold.usable and fold.pinned) or self.after_fold is None:
+            return False
+        return _no_curve(*self.after_fold, self.largest_v)
 
     def to_dict(self) -> dict[str, float | bool | dict[str, float | bool]]:
         out: dict[str, float | bool | dict[str, float | bool]] = {
@@ -251,10 +283,18 @@ class Linearity:
             "largest_v": self.largest_v,
             "seconds": self.seconds,
             "linear": self.linear,
+            "linear_as_read": self.linear_as_read,
         }
         if self.fold is not None:
             out["fold"] = self.fold.to_dict()
         return out
+
+
+def _no_curve(curve_v: float, share: float, largest_v: float) -> bool:
+    """Whether a curve of ``curve_v`` (V rms) explaining ``share`` of the slow error is below
+    the limits (:data:`CURVE_SHARE` with :data:`CURVE_SIZE`, or :data:`CURVE_ALONE`)."""
+    size = curve_v / largest_v if largest_v > 0 else 0.0
+    return not ((share >= CURVE_SHARE and size >= CURVE_SIZE) or size >= CURVE_ALONE)
 
 
 def applies_to(intersample: str) -> bool:
@@ -515,12 +555,24 @@ def _test(rows: np.ndarray, scale: float, dt_block: float, *, armature: bool) ->
     if not p0 > 0:
         return Linearity(0.0, 0.0, largest, seconds)
     fold = _fit_fold(v, r0, a0, keep, dt_block, largest) if armature else None
+    after = None
+    if fold is not None:
+        # The curve test again with the fold beside the motor's terms.
+        folded = list(smooth(_fold_columns(v, fold.period_v))[keep].T)
+        fold = dataclasses.replace(fold, span_v=float(hi - lo) * scale)
+        b0 = _scaled(np.column_stack(base + folded))
+        b1 = _scaled(np.column_stack(base + folded + [x[keep] for x in signals[2 + len(others) :]]))
+        q0 = float(np.mean((y - b0 @ np.linalg.lstsq(b0, y, rcond=None)[0]) ** 2))
+        q1 = float(np.mean((y - b1 @ np.linalg.lstsq(b1, y, rcond=None)[0]) ** 2))
+        if q0 > 0:
+            after = (math.sqrt(max(q0 - q1, 0.0)), max(0.0, 1.0 - q1 / q0))
     return Linearity(
         curve_v=math.sqrt(max(p0 - p1, 0.0)),
         share=max(0.0, 1.0 - p1 / p0),
         largest_v=largest,
         seconds=seconds,
         fold=fold,
+        after_fold=after,
     )
 
 

@@ -3,6 +3,7 @@ zero frequency, seen in the armature's slow equation error and held."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -238,3 +239,27 @@ def test_a_field_chopper_beside_a_folded_armature_carries_the_fold_as_an_offset(
     bridge = _bridge_field_recording()
     vf = np.asarray(bridge.signals["vf"][:4000], dtype=float)
     assert with_field_fold(est, fold, vf, bridge.dt) is est
+
+
+def test_a_curve_that_a_pinned_fold_explains_is_taken_out_not_held():
+    """Behind RC voltage filters a chopper's fold at 10 kHz is large enough to read as a curve
+    (0.37-0.49 % of the largest voltage): held, though the fold, fitted beside the motor's
+    terms, leaves no curve (0.02-0.05 %). A fold whose period the voltages span three times
+    or more is set by its periodic shape and is taken out instead; one of a chopper sampled in
+    step (a period of about the voltages' span: mostly a gain) leaves the reading held."""
+    from observer.estimation.linearity import CURVE_ALONE, Fold, Linearity
+
+    largest = 240.0
+    pinned = Fold(105.0, (0.0, 2.0, 0.0, 0.1), 1.7, 0.95, 0.05, largest_v=largest, span_v=460.0)
+    in_step = dataclasses.replace(pinned, period_v=449.0)
+    curved = dict(curve_v=2 * CURVE_ALONE * largest, share=0.3, largest_v=largest, seconds=30.0)
+    after = (0.0002 * largest, 0.1)
+    result = Linearity(**curved, fold=pinned, after_fold=after)
+    assert not result.linear_as_read and result.linear and result.correction is pinned
+    assert result.to_dict()["linear_as_read"] is False
+    held = Linearity(**curved, fold=in_step, after_fold=after)
+    assert not held.linear and held.correction is None
+    still_curved = Linearity(**curved, fold=pinned, after_fold=(2 * CURVE_ALONE * largest, 0.9))
+    assert not still_curved.linear
+    weak = Linearity(**curved, fold=dataclasses.replace(pinned, share=0.3), after_fold=after)
+    assert not weak.linear
