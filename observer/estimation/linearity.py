@@ -554,7 +554,10 @@ def _test(rows: np.ndarray, scale: float, dt_block: float, *, armature: bool) ->
     p0, p1 = float(np.mean(r0**2)), float(np.mean(r1**2))
     if not p0 > 0:
         return Linearity(0.0, 0.0, largest, seconds)
-    fold = _fit_fold(v, r0, a0, keep, dt_block, largest) if armature else None
+    # (A fold is a sampling effect far above the winding's equation: not looked for where the
+    # blocks are too slow to low-pass, a recording in other time units.)
+    slow_enough = LOW_HZ < 0.9 * nyquist
+    fold = _fit_fold(v, r0, a0, keep, dt_block, largest) if armature and slow_enough else None
     after = None
     if fold is not None:
         # The curve test again with the fold beside the motor's terms.
