@@ -205,7 +205,6 @@ class Fold:
             "rms_v": self.rms_v,
             "share": self.share,
             "residual_v": self.residual_v,
-            "taken_out": self.usable,
         }
 
 
@@ -286,7 +285,7 @@ class Linearity:
             "linear_as_read": self.linear_as_read,
         }
         if self.fold is not None:
-            out["fold"] = self.fold.to_dict()
+            out["fold"] = {**self.fold.to_dict(), "taken_out": self.correction is not None}
         return out
 
 

@@ -259,6 +259,8 @@ def test_a_curve_that_a_pinned_fold_explains_is_taken_out_not_held():
     assert result.to_dict()["linear_as_read"] is False
     held = Linearity(**curved, fold=in_step, after_fold=after)
     assert not held.linear and held.correction is None
+    # (usable, but not taken out of a reading that is held: the output must not say it was)
+    assert in_step.usable and held.to_dict()["fold"]["taken_out"] is False
     still_curved = Linearity(**curved, fold=pinned, after_fold=(2 * CURVE_ALONE * largest, 0.9))
     assert not still_curved.linear
     weak = Linearity(**curved, fold=dataclasses.replace(pinned, share=0.3), after_fold=after)
