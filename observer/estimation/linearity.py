@@ -538,7 +538,10 @@ def _test(rows: np.ndarray, scale: float, dt_block: float, *, armature: bool) ->
     nyquist = 0.5 / dt_block
     signals = [v, current, *others, *curve]
     smooth: Callable[[np.ndarray], np.ndarray] = lambda x: x  # noqa: E731
-    if LOW_HZ < 0.9 * nyquist:
+    # (Blocks too slow to low-pass: a recording in other time units. A fold, a sampling effect
+    # far above the winding's equation, is not looked for there.)
+    low_passed = LOW_HZ < 0.9 * nyquist
+    if low_passed:
         b, a = butter(2, LOW_HZ / nyquist)
         smooth = functools.partial(filtfilt, b, a, axis=0)
         signals = [smooth(x) for x in signals]
@@ -546,36 +549,36 @@ def _test(rows: np.ndarray, scale: float, dt_block: float, *, armature: bool) ->
     y = signals[0][keep]
     base = [signals[1][keep], np.gradient(signals[1], dt_block)[keep], np.ones_like(y)]
     base += [x[keep] for x in signals[2 : 2 + len(others)]]
-    a0 = _scaled(np.column_stack(base))
-    a1 = _scaled(np.column_stack(base + [x[keep] for x in signals[2 + len(others) :]]))
-    r0 = y - a0 @ np.linalg.lstsq(a0, y, rcond=None)[0]
-    r1 = y - a1 @ np.linalg.lstsq(a1, y, rcond=None)[0]
-    p0, p1 = float(np.mean(r0**2)), float(np.mean(r1**2))
+    curves = [x[keep] for x in signals[2 + len(others) :]]
+    a0, r0 = _fitted(base, y)
+    p0, p1 = float(np.mean(r0**2)), float(np.mean(_fitted(base + curves, y)[1] ** 2))
     if not p0 > 0:
         return Linearity(0.0, 0.0, largest, seconds)
-    # (A fold is a sampling effect far above the winding's equation: not looked for where the
-    # blocks are too slow to low-pass, a recording in other time units.)
-    slow_enough = LOW_HZ < 0.9 * nyquist
-    fold = _fit_fold(v, r0, a0, keep, dt_block, largest) if armature and slow_enough else None
+    fold = _fit_fold(v, r0, a0, keep, dt_block, largest) if armature and low_passed else None
     after = None
     if fold is not None:
         # The curve test again with the fold beside the motor's terms.
         folded = list(smooth(_fold_columns(v, fold.period_v))[keep].T)
         fold = dataclasses.replace(fold, span_v=float(hi - lo) * scale)
-        b0 = _scaled(np.column_stack(base + folded))
-        b1 = _scaled(np.column_stack(base + folded + [x[keep] for x in signals[2 + len(others) :]]))
-        q0 = float(np.mean((y - b0 @ np.linalg.lstsq(b0, y, rcond=None)[0]) ** 2))
-        q1 = float(np.mean((y - b1 @ np.linalg.lstsq(b1, y, rcond=None)[0]) ** 2))
+        q0 = float(np.mean(_fitted(base + folded, y)[1] ** 2))
+        q1 = float(np.mean(_fitted(base + folded + curves, y)[1] ** 2))
         if q0 > 0:
-            after = (math.sqrt(max(q0 - q1, 0.0)), max(0.0, 1.0 - q1 / q0))
+            after = _curve(q0, q1)
     return Linearity(
-        curve_v=math.sqrt(max(p0 - p1, 0.0)),
-        share=max(0.0, 1.0 - p1 / p0),
-        largest_v=largest,
-        seconds=seconds,
-        fold=fold,
-        after_fold=after,
+        *_curve(p0, p1), largest_v=largest, seconds=seconds, fold=fold, after_fold=after
     )
+
+
+def _fitted(columns: list[np.ndarray], y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ``columns`` scaled (:func:`_scaled`) as one matrix, and what of ``y`` their least
+    squares leaves."""
+    a = _scaled(np.column_stack(columns))
+    return a, y - a @ np.linalg.lstsq(a, y, rcond=None)[0]
+
+
+def _curve(p0: float, p1: float) -> tuple[float, float]:
+    """RMS (V) and share of a slow error of power ``p0`` that a curve explains, leaving ``p1``."""
+    return math.sqrt(max(p0 - p1, 0.0)), max(0.0, 1.0 - p1 / p0)
 
 
 def _fit_fold(
