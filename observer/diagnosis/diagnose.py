@@ -41,10 +41,11 @@ each a function of its own:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -91,7 +92,12 @@ from observer.estimation import CircuitEstimate, estimate_armature, estimate_fie
 from observer.estimation.armature import aliased_bands, armature_problem
 from observer.estimation.frontend import winding_front_ends
 from observer.estimation.intersample import MIN_SWITCHED_SHARE, InputModel, find_switching
-from observer.estimation.linearity import applies_to, made_by_a_bridge, voltage_linearity
+from observer.estimation.linearity import (
+    Linearity,
+    applies_to,
+    made_by_a_bridge,
+    voltage_linearity,
+)
 from observer.estimation.lines import notch, settle_samples
 from observer.estimation.problem import make_problem
 from observer.estimation.ranges import kernel_array
@@ -202,17 +208,26 @@ def without_aliased_pulses(
     return notched, aliased_finding("va", "ia", bands)
 
 
-def without_folded_pulses(rec: Any) -> tuple[Any, ChainFinding | None]:
+def armature_linearity(rec: Any) -> Linearity | None:
+    """The linearity test of ``rec``'s armature voltage reading
+    (:func:`~observer.estimation.linearity.voltage_linearity`)."""
+    return voltage_linearity(rec["va"], rec["ia"], rec.dt, rec["if"], rec["omega"])
+
+
+def without_folded_pulses(
+    rec: Any, linearity: Callable[[], Linearity | None] | None = None
+) -> tuple[Any, ChainFinding | None]:
     """``rec`` with a converter's pulses folded onto its armature voltage taken out
     (:attr:`~observer.estimation.linearity.Linearity.correction`), as the estimator takes them
     out, and the ``pulses_folded`` finding; ``(rec, None)`` where there is no such fold (a
     bridge's voltage is never tested: its jumps are put back between the samples). Kept, the
     fold's slope at the drive's reversals, a gain error of 2-3 %, read as a motor effect: a
-    healthy P-12 behind a chopper at 10 kHz came back ``unexplained``."""
+    healthy P-12 behind a chopper at 10 kHz came back ``unexplained``. ``linearity``: the test
+    of ``rec``'s reading, where it is already known (else it is run)."""
     va = kernel_array(rec["va"])
     if made_by_a_bridge(va, rec.dt):
         return rec, None
-    result = voltage_linearity(va, rec["ia"], rec.dt, rec["if"], rec["omega"])
+    result = linearity() if linearity is not None else armature_linearity(rec)
     fold = result.correction if result is not None else None
     if fold is None:
         return rec, None
@@ -621,10 +636,14 @@ def decide_verdict(
     n_particles: int,
     iterations: int,
     seed: int,
+    linearity: Callable[[], Linearity | None] | None = None,
 ) -> Verdict:
-    """Stage 6: refit the selected effect on all segments, rank the findings, name the verdict."""
+    """Stage 6: refit the selected effect on all segments, rank the findings, name the verdict.
+
+    ``linearity``: the armature reading's linearity test where it is already known (it is
+    run on ``rec`` otherwise)."""
     spectra = {c: voltage_spectrum(rec[v], rec.dt) for c, v in VOLTAGE_CHANNEL.items()}
-    chain = front_end_findings(rec, baseline, spectra)
+    chain = front_end_findings(rec, baseline, spectra, linearity)
     verdict = selection.verdict
     confounded = _confounded_with_chain(chain) & set(verdict.split("+"))
     set_aside = ""
@@ -963,10 +982,14 @@ def alias_explains(
 
 
 def front_end_findings(
-    rec: Any, baseline: Baseline, spectra: dict[str, VoltageSpectrum]
+    rec: Any,
+    baseline: Baseline,
+    spectra: dict[str, VoltageSpectrum],
+    linearity: Callable[[], Linearity | None] | None = None,
 ) -> tuple[ChainFinding, ...]:
     """What the front end shows whatever the motor does: a missing filter, skewed channels,
-    front ends nobody told whose mismatch could move an inductance."""
+    front ends nobody told whose mismatch could move an inductance (``linearity``: the
+    armature reading's linearity test, where already known)."""
     out = []
     for circuit, voltage in VOLTAGE_CHANNEL.items():
         shift, std = baseline.shifts.get(circuit, (0.0, 0.0))
@@ -974,7 +997,7 @@ def front_end_findings(
         name = "Lf" if circuit == "field" else "La"
         for found in (
             pwm_finding(voltage, kernel_array(rec[voltage])),
-            _folded(rec, est) if circuit == "armature" else None,
+            _folded(rec, est, linearity) if circuit == "armature" else None,
             no_filter_finding(voltage, spectra[circuit]),
             skew_finding(voltage, CURRENT_CHANNEL[circuit], shift, std, rec.dt),
             front_end_finding(
@@ -993,13 +1016,14 @@ def front_end_findings(
     return tuple(out)
 
 
-def _folded(rec: Any, armature: CircuitEstimate) -> ChainFinding | None:
+def _folded(
+    rec: Any, armature: CircuitEstimate, linearity: Callable[[], Linearity | None] | None
+) -> ChainFinding | None:
     """``voltage_folded`` if the armature's voltage reads a curve of the voltage
     (:mod:`~observer.estimation.linearity`), where the test applies."""
     if not applies_to(armature.intersample):
         return None
-    result = voltage_linearity(rec["va"], rec["ia"], rec.dt, rec["if"], rec["omega"])
-    return folded_finding("va", result)
+    return folded_finding("va", linearity() if linearity is not None else armature_linearity(rec))
 
 
 def _strong(structure: Sequence[ConditionStructure]) -> list[ConditionStructure]:
@@ -1194,7 +1218,10 @@ def diagnose(
         raise ValueError(f"unknown effect(s) {unknown}; expected some of {list(LIBRARY)}")
     split_segments(rec.n_samples, rec.dt, max_fit_samples)  # too short: say so before the fits
     rec, aliased = without_aliased_pulses(rec, chain, seed=seed)
-    rec, folded = without_folded_pulses(rec)
+    # The reading's linearity test, once: a reading whose fold is taken out was linear already
+    # (and reads no curve without it), one without a fold is tested as it stays.
+    linearity = functools.cache(functools.partial(armature_linearity, rec))
+    rec, folded = without_folded_pulses(rec, linearity)
     baseline = fit_baseline(
         rec, n_particles=baseline_particles, iterations=baseline_iterations, seed=seed,
         chain=chain,
@@ -1215,7 +1242,7 @@ def diagnose(
     bar.close()
     outcome = decide_verdict(
         rec, baseline, floors, located, cands, selection, names, n_particles=n_particles,
-        iterations=iterations, seed=seed,
+        iterations=iterations, seed=seed, linearity=linearity,
     )  # fmt: skip
     taken_out = tuple(f for f in (aliased, folded) if f is not None)
     if taken_out:
