@@ -11,6 +11,8 @@ described, not as the nearest effect in the library.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -38,6 +40,23 @@ def _recording(effects=None, *, seed=1, duration_s=6.0, drive=REALISTIC):
         P12, duration_s=duration_s, sample_rate_hz=RATE_HZ, seed=seed, effects=effects,
         drive=drive, drive_name="realistic",
     )  # fmt: skip
+
+
+def _chopper(rate_hz: float, *, seed: int, duration_s: float):
+    """The P-12 behind the 4-quadrant chopper (2 kHz carrier) and the realistic chain."""
+    from bench.accuracy_rates import drive_spec
+
+    return simulate(
+        P12, duration_s=duration_s, sample_rate_hz=rate_hz, seed=seed,
+        drive=drive_spec("chopper"), drive_name="chopper",
+    )  # fmt: skip
+
+
+@functools.cache
+def _healthy_bridge_chain() -> frozenset[str]:
+    """The kinds of chain finding of the healthy P-12 behind the thyristor bridge (diagnosed
+    once for the tests that ask what a bridge does not show)."""
+    return frozenset(f.kind for f in diagnose(_recording()).chain)
 
 
 def test_the_voltage_spectrum_tells_a_filtered_converter_from_an_unfiltered_one():
@@ -187,12 +206,7 @@ def test_a_healthy_motor_behind_a_chopper_at_5_khz_is_none_its_aliased_pulses_a_
     diagnosis read them as a motor effect (`unexplained`, `sampling_skew` earning +28 % on
     held-out data). Found by the current's answer and left out, the motor is `none`, and the
     chain says what it left out and why."""
-    from bench.accuracy_rates import drive_spec
-
-    rec = simulate(
-        P12, duration_s=10.0, sample_rate_hz=5000.0, seed=1, drive=drive_spec("chopper"),
-        drive_name="chopper",
-    )  # fmt: skip
+    rec = _chopper(5000.0, seed=1, duration_s=10.0)
     diag = diagnose(rec)
     assert diag.verdict == NONE, diag.description
     aliased = [f for f in diag.chain if f.kind == "pulses_aliased"]
@@ -200,7 +214,7 @@ def test_a_healthy_motor_behind_a_chopper_at_5_khz_is_none_its_aliased_pulses_a_
     assert "1000 Hz" in aliased[0].description
     # A bridge's ripple is the winding's own: nothing aliased there.
     assert not any(f.kind == "voltage_folded" for f in diag.chain)
-    assert not any(f.kind == "pulses_aliased" for f in diagnose(_recording()).chain)
+    assert "pulses_aliased" not in _healthy_bridge_chain()
 
 
 def test_a_chopper_sampled_in_step_with_its_pulses_is_a_chain_finding_not_a_motor_effect():
@@ -208,12 +222,7 @@ def test_a_chopper_sampled_in_step_with_its_pulses_is_a_chain_finding_not_a_moto
     at one phase, and va reads as a curve of the voltage. The diagnosis put the ia residual,
     periodic in shaft angle, to the motor (``armature_reaction`` the nearest effect); now the
     chain says what it is and what to do, and nothing on the armature is judged from it."""
-    from bench.accuracy_rates import drive_spec
-
-    rec = simulate(
-        P12, duration_s=12.0, sample_rate_hz=4000.0, seed=1, drive=drive_spec("chopper"),
-        drive_name="chopper",
-    )  # fmt: skip
+    rec = _chopper(4000.0, seed=1, duration_s=12.0)
     diag = diagnose(rec)
     folded = [f for f in diag.chain if f.kind == "voltage_folded"]
     assert len(folded) == 1 and folded[0].channel == "va", [f.kind for f in diag.chain]
@@ -229,12 +238,7 @@ def test_a_healthy_motor_behind_a_chopper_at_10_khz_is_none_its_folded_pulses_ta
     a curve periodic in the voltage; its slope at the reversals, a gain error of 2-3 %, read as
     an ia residual periodic in shaft angle (``unexplained``). Taken out of va, the motor is
     ``none`` and the chain says what was taken out."""
-    from bench.accuracy_rates import drive_spec
-
-    rec = simulate(
-        P12, duration_s=10.0, sample_rate_hz=10_000.0, seed=0, drive=drive_spec("chopper"),
-        drive_name="chopper",
-    )  # fmt: skip
+    rec = _chopper(10_000.0, seed=0, duration_s=10.0)
     diag = diagnose(rec)
     assert diag.verdict == NONE, diag.description
     folded = [f for f in diag.chain if f.kind == "pulses_folded"]
@@ -242,7 +246,7 @@ def test_a_healthy_motor_behind_a_chopper_at_10_khz_is_none_its_folded_pulses_ta
     assert "periodic in the voltage" in folded[0].description
     assert not any(f.kind == "voltage_folded" for f in diag.chain)
     # A bridge's voltage is never tested for a fold.
-    assert not any(f.kind == "pulses_folded" for f in diagnose(_recording()).chain)
+    assert "pulses_folded" not in _healthy_bridge_chain()
 
 
 def test_eddy_currents_are_not_named_where_the_channels_read_skewed():
