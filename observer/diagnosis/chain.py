@@ -16,7 +16,9 @@ Three findings come from the front end alone, whatever the motor does:
 
 ``no_anti_aliasing``
     The voltage's line content does not fall towards the Nyquist frequency
-    (no filter, or one far above it).
+    (no filter, or one far above it). Judged on a bridge's comb of harmonics; a line
+    standing alone near Nyquist (a chopper's pulses) says nothing of the filter, and a
+    chopper sampled bare is ``pwm_sampled_bare``.
 ``channel_skew``
     The estimator's fitted relative delay between the voltage and current
     channels is significant: different filters on the two channels, or a
@@ -82,6 +84,13 @@ FLAT_RATIO = 0.65
 #: ... and at least this share of the voltage's standard deviation (not the noise of a
 #: drive that changes its held voltage every sample).
 FLAT_MIN_SHARE = 0.01
+#: Top band's content this many times the band below it: not a comb that fails to fall but a
+#: line that stands alone near Nyquist (a chopper's pulses, 4 kHz at 10 kHz, or their
+#: alias). A bridge's harmonics fall as 1/h, and with no filter at all their aliases keep
+#: the two bands within 0.65-0.9 of each other (P-12, 50 and 60 Hz, 2-10 kHz); a filtered
+#: chopper's pulse line stands 5-1200 times above the band below. The fall cannot say
+#: whether such a line was filtered: a chopper sampled bare is ``pwm_sampled_bare``.
+LINE_RATIO = 2.5
 #: A fitted relative delay (sample periods) this large, and ...
 SKEW_MIN_SAMPLES = 0.02
 #: ... this many of its standard deviations, is a chain finding.
@@ -151,9 +160,14 @@ class VoltageSpectrum:
         return self.top_v / self.mid_v if self.mid_v > 0 else 0.0
 
     @property
+    def line(self) -> bool:
+        """Whether the top band holds a line standing alone (:data:`LINE_RATIO`), not a comb."""
+        return self.ratio >= LINE_RATIO
+
+    @property
     def flat(self) -> bool:
-        """Whether the content does not fall towards Nyquist (no anti-aliasing filter)."""
-        return self.ratio >= FLAT_RATIO and self.top_v >= FLAT_MIN_SHARE * self.std_v
+        """Whether a comb's content does not fall towards Nyquist (no anti-aliasing filter)."""
+        return FLAT_RATIO <= self.ratio < LINE_RATIO and self.top_v >= FLAT_MIN_SHARE * self.std_v
 
 
 def _welch(v: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:

@@ -16,7 +16,13 @@ import functools
 import numpy as np
 import pytest
 
-from observer.diagnosis.chain import front_end_finding, skew_finding, voltage_spectrum
+from observer.diagnosis.chain import (
+    front_end_finding,
+    no_filter_finding,
+    pwm_finding,
+    skew_finding,
+    voltage_spectrum,
+)
 from observer.diagnosis.diagnose import diagnose
 from observer.diagnosis.results import NONE, UNEXPLAINED
 from observer.estimation.motor import P12
@@ -70,6 +76,23 @@ def test_the_voltage_spectrum_tells_a_filtered_converter_from_an_unfiltered_one(
     # Behind the filter the content falls towards Nyquist; what can fold is far less.
     assert s_f.ratio < 0.5 < s_u.ratio
     assert s_i.alias_v < s_f.alias_v < 0.1 * s_u.alias_v
+
+
+def test_a_chopper_pulse_line_near_nyquist_is_not_read_as_a_missing_filter():
+    """A filtered chopper's 4 kHz pulse line sits in the top band at 10 kHz, tens of times the
+    band below it: not a comb that does not fall, so no ``no_anti_aliasing``; sampled bare, its
+    samples sit at the chopper's levels and that is what the chain says instead."""
+    filtered = _chopper(10_000.0, seed=2, duration_s=3.0)
+    bare = simulate(
+        P12, duration_s=3.0, sample_rate_hz=10_000.0, seed=2, drive_name="chopper",
+        drive=NO_FILTER.replace(converter=REALISTIC.converter.replace(armature="chopper")),
+    )  # fmt: skip
+    for ch in ("va", "vf"):
+        spectrum = voltage_spectrum(filtered[ch], filtered.dt)
+        assert spectrum.line and not spectrum.flat, (ch, spectrum)
+        assert no_filter_finding(ch, spectrum) is None
+    assert pwm_finding("va", np.asarray(bare["va"], dtype=np.float64)) is not None
+    assert pwm_finding("va", np.asarray(filtered["va"], dtype=np.float64)) is None
 
 
 def test_a_skew_is_a_chain_finding_only_when_it_is_real():
@@ -245,6 +268,8 @@ def test_a_healthy_motor_behind_a_chopper_at_10_khz_is_none_its_folded_pulses_ta
     assert len(folded) == 1 and folded[0].channel == "va"
     assert "periodic in the voltage" in folded[0].description
     assert not any(f.kind == "voltage_folded" for f in diag.chain)
+    # Both voltages are filtered: the pulses' line alone near Nyquist is not a missing filter.
+    assert not any(f.kind == "no_anti_aliasing" for f in diag.chain), [f.kind for f in diag.chain]
     # A bridge's voltage is never tested for a fold.
     assert "pulses_folded" not in _healthy_bridge_chain()
 
