@@ -33,6 +33,12 @@ at each of ``--rates``:
     python bench/diagnose_rates.py --drive realistic --seeds 5 --workers 1 \
         --out bench/diagnose_converter.jsonl --table OUT.md
 
+``--converter chopper`` (with ``--drive realistic``) runs the same cases behind the 4-quadrant
+chopper and a field chopper (2 kHz carrier) instead of the bridges:
+
+    python bench/diagnose_rates.py --drive realistic --converter chopper --seeds 4 \
+        --duration 10 --out bench/diagnose_chopper.jsonl --table OUT.md
+
 ``--variants`` (with ``--drive realistic``) runs the cases again on chains nothing was tuned on
 (:data:`bench.accuracy_rates.VARIANTS`: 60 Hz mains, commutation overlap, 4th-order Bessel
 filters, 4th-order voltage filters beside 2nd-order currents, a multiplexed ADC, 16 bits).
@@ -156,6 +162,10 @@ def run_converter_case(job: dict[str, Any]) -> dict[str, Any]:
     kind, motor, effects, variant = CONVERTER_CASES[job["case"]]
     other = job.get("drive_variant", "standard")
     drive = VARIANTS[other][1](converter_drive(variant), float(job["rate"]))
+    if job.get("converter") == "chopper":
+        drive = drive.replace(
+            converter=drive.converter.replace(armature="chopper", field="chopper")
+        )
     if kind == "clean" and other in APART and not job["configured"]:
         kind = "chain"  # told, the chain is modelled and nothing is left to report
     rec = simulate(
@@ -195,6 +205,7 @@ def converter_jobs(
     rates: list[float],
     cases: list[str] | None = None,
     variants: Sequence[str] = ("standard",),
+    converter: str = "thyristor",
 ) -> list[dict[str, Any]]:
     out = []
     for name, (kind, _, _, _) in CONVERTER_CASES.items():
@@ -207,7 +218,8 @@ def converter_jobs(
                         out.append(
                             {"case": name, "rate": rate, "configured": configured,
                              "seed": 3000 + seed, "duration": duration,
-                             **({"drive_variant": variant} if variant != "standard" else {})}
+                             **({"drive_variant": variant} if variant != "standard" else {}),
+                             **({"converter": converter} if converter != "thyristor" else {})}
                         )  # fmt: skip
     return out
 
@@ -238,6 +250,8 @@ def converter_table(results: list[dict[str, Any]]) -> str:
             apart = case_kind == "clean" and variant in APART and not configured
             kind = "chain" if apart else case_kind
             label = name if variant == "standard" else f"{name}, {variant}"
+            if any(r.get("converter") == "chopper" for r in rs):
+                label += ", chopper"
             cells = []
             for rate in rates:
                 at = [r for r in rs if r["rate"] == rate]
@@ -355,6 +369,11 @@ def main(argv: list[str] | None = None) -> int:
         "--cases", default=None, help="';'-separated subset of the converter-fed case names"
     )
     parser.add_argument(
+        "--converter", choices=("thyristor", "chopper"), default="thyristor",
+        help="with --drive realistic: the drive behind which the cases run (chopper: the "
+        "4-quadrant chopper and a field chopper, 2 kHz carrier)",
+    )  # fmt: skip
+    parser.add_argument(
         "--variants", default="standard",
         help="with --drive realistic: chains beyond the cases' own (bench.accuracy_rates "
         "--variants), comma-separated",
@@ -445,11 +464,11 @@ def converter_main(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
-    todo = converter_jobs(args.seeds, args.duration, rates, cases, variants)
+    todo = converter_jobs(args.seeds, args.duration, rates, cases, variants, args.converter)
     keys = ("case", "rate", "configured", "seed", "duration")
 
     def key(row: dict[str, Any]) -> tuple[Any, ...]:
-        return (*(row[k] for k in keys), _variant(row))
+        return (*(row[k] for k in keys), _variant(row), row.get("converter", "thyristor"))
 
     done: list[dict[str, Any]] = []
     if args.out.exists():

@@ -124,6 +124,10 @@ CURRENT_FILTER_ADVICE = (
     "converter's jumps from folding into its samples), or sample faster, and configure both in "
     "[chain.{ch}] and [chain.{cur}]"
 )
+PULSES_LINE_ADVICE = (
+    "measure {ch} averaged over each sample period (an integrating ADC), or filter it more "
+    "steeply below the converter's pulse frequency, and configure it in [chain.{ch}]"
+)
 ALIAS_ADVICE = (
     "sample faster (at least 5 kHz behind a 6-pulse bridge), or lower the voltage channels' "
     "anti-aliasing cutoff, or measure the voltages averaged over each period; configure the "
@@ -203,6 +207,13 @@ def voltage_spectrum(v: np.ndarray, dt: float) -> VoltageSpectrum:
     ``[fs/4, 3fs/8)`` by a ratio ``q``; continued at the same rate, a line at
     the sample rate has ``top * q^k`` with ``k = ln(fs/f_top)/ln(f_top/f_mid)``
     (band centres): the folded error is bounded by that.
+
+    A line standing alone in the top band (:data:`LINE_RATIO`: a chopper's pulses) is no
+    such comb, and continued it would bound nothing (the P-12 behind a filtered chopper at
+    10 kHz: a 31 V line, where the error the pulses fold onto the reading is 0.28 V rms,
+    measured and taken out by the armature's fold fit, ``pulses_folded``). The spectrum then
+    vouches for no folded error: ``alias_v`` is 0, and a motor effect is not put down to it
+    (it had taken a 2 % thermal rise and a back-EMF ripple for the chain's).
     """
     f, psd = _welch(v, dt)
     fs = 1.0 / dt
@@ -220,7 +231,7 @@ def voltage_spectrum(v: np.ndarray, dt: float) -> VoltageSpectrum:
 
     mid, top = content(*_MID), content(*_TOP)
     alias = 0.0
-    if mid > 0 and top > 0:
+    if mid > 0 and top > 0 and top < LINE_RATIO * mid:
         f_mid, f_top = sum(_MID) / 2, sum(_TOP) / 2
         k = math.log(1.0 / f_top) / math.log(f_top / f_mid)
         alias = top * min(top / mid, 1.0) ** k
@@ -272,6 +283,19 @@ def alias_finding(
     channel: str, spectrum: VoltageSpectrum, offset_v: float, words: str
 ) -> ChainFinding:
     """``content_near_nyquist``: located structure no larger than folding can cause."""
+    if spectrum.line:
+        # A chopper's pulses: the bound is the fold fitted on the armature's reading.
+        return ChainFinding(
+            channel,
+            "content_near_nyquist",
+            f"measurement chain: {channel} carries a converter's pulse line near the Nyquist "
+            f"frequency ({spectrum.top_v:.3g} V in the top eighth-band), whose harmonics on "
+            f"multiples of the sample rate fold onto the reading as a curve periodic in the "
+            f"voltage of up to {spectrum.alias_v:.3g} V (fitted, too little of the slow error to "
+            f"take out); the structure located ({words}, {offset_v:.3g} V at the winding) is no "
+            "larger: it is the sampling of the converter's pulses, not the motor",
+            PULSES_LINE_ADVICE.format(ch=channel),
+        )
     return ChainFinding(
         channel,
         "content_near_nyquist",
@@ -368,6 +392,23 @@ def pulses_folded_finding(channel: str, fold: Fold | None) -> ChainFinding | Non
     )
 
 
+def pulses_bound_finding(channel: str, spectrum: VoltageSpectrum) -> ChainFinding:
+    """``pulses_folded`` on a ``channel`` whose residual the fold's bound (``alias_v``, the
+    armature's fold scaled to it) excuses: its pulses fold alike, and were not taken out (or
+    only as far as the bound says)."""
+    return ChainFinding(
+        channel,
+        "pulses_folded",
+        f"measurement chain: {channel} is fed by a converter's pulses ({spectrum.top_v:.3g} V "
+        "of their line in the top eighth-band) that fold onto its reading by up to "
+        f"{spectrum.alias_v:.3g} V (the fold fitted on the armature's reading"
+        + (", scaled to this voltage" if channel != "va" else "")
+        + "; a winding at a few steady levels reads one offset per level, which no curve "
+        "shows), and what that leaves in the residual is not the motor's",
+        PULSES_LINE_ADVICE.format(ch=channel),
+    )
+
+
 #: Advice of a chain finding of kind ``pulses_folded``.
 PULSES_FOLDED_ADVICE = (
     "nothing is needed for the estimate; to read {ch} without the fold, measure it averaged over "
@@ -397,6 +438,21 @@ def folded_finding(channel: str, result: Linearity | None) -> ChainFinding | Non
         "equation): a converter's pulses sampled in step with the ADC, folded onto zero "
         "frequency, read as a gain and a curve that no model of the samples takes out; the "
         "winding is not estimated from it, and no effect on it judged",
+        FOLDED_ADVICE.format(ch=channel),
+    )
+
+
+def field_folded_finding(channel: str, note: str) -> ChainFinding | None:
+    """``voltage_folded`` on the field's ``channel`` judged beside a folded armature: ``note``
+    is :func:`~observer.estimation.linearity.field_note`'s reason ("" where the field can be
+    described)."""
+    if not note:
+        return None
+    return ChainFinding(
+        channel,
+        "voltage_folded",
+        f"measurement chain: {channel} cannot be read as the voltage: {note}; the winding is not "
+        "estimated from it, and no effect on it judged",
         FOLDED_ADVICE.format(ch=channel),
     )
 

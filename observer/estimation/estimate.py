@@ -278,7 +278,7 @@ def with_field_fold(
     mean_v = float(np.mean(np.abs(v)))
     if not (mean_v > 0 and fold.largest_v > 0):
         return est
-    peak = fold.peak_v * float(np.percentile(np.abs(v), 99.0)) / fold.largest_v
+    peak = fold.peak_for(v)
     move = est.resistance_ohm * peak / mean_v
     std, shared = dict(est.std), dict(est.shared_std)
     std["R"] = math.hypot(std["R"], move)

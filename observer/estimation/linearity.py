@@ -185,6 +185,15 @@ class Fold:
         v = np.linspace(0.0, self.period_v, 257)
         return float(np.max(np.abs(self(v))))
 
+    def peak_for(self, voltage: np.ndarray) -> float:
+        """The fold's peak scaled to another reading of the same converter, ``voltage`` (V):
+        a pulse's harmonics are proportional to its height, so the fold to the voltage's
+        range (its 99th percentile of |v| against :attr:`largest_v`)."""
+        v = np.abs(np.asarray(voltage, dtype=np.float64))
+        if not (self.largest_v > 0 and v.size):
+            return 0.0
+        return self.peak_v * float(np.percentile(v, 99.0)) / self.largest_v
+
     def of_samples(self, voltage: np.ndarray, dt: float) -> np.ndarray:
         """The fold to subtract from each of contiguous samples ``voltage`` (V; period ``dt``
         s), at their centred mean over a block (:data:`BLOCK_HZ`), as the fold was fitted: a

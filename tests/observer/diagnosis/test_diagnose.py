@@ -184,6 +184,24 @@ def test_noise_floor_of_a_simulated_correct_residual():
     assert drifting.variance_a2 == pytest.approx(expected, rel=0.15)
 
 
+def test_the_noise_floor_of_a_slow_winding_is_not_a_chopper_s_ripple():
+    """A slow winding's floor takes the input noise from the voltage itself. A chopper's pulse
+    line left by the filter (0.4 fs, 30 V) moves every first difference; the noise is the floor
+    of the spectrum between the lines. A voltage without the line keeps its floor."""
+    rng = np.random.default_rng(1)
+    n, a, b = 40000, 0.999, 0.005
+    r = rng.normal(0, 0.01, n)
+    noise = rng.normal(0, 0.5, n)
+    k = np.arange(n)
+    held = 120.0 + 80.0 * np.sin(2 * np.pi * k / 20000) + noise  # the drive's slow swing
+    pulsed = held + 30.0 * np.sin(2 * np.pi * 0.4 * k) * (1 + 0.2 * np.sin(2 * np.pi * k / 9000))
+    floor_held = noise_floor("field", r, a, b, held)
+    floor_pulsed = noise_floor("field", r, a, b, pulsed)
+    expected = 0.25 * b * b / (1 - a * a)  # the voltage noise through the winding
+    assert floor_held.coloured_a2 == pytest.approx(expected, rel=0.15)
+    assert floor_pulsed.coloured_a2 == pytest.approx(expected, rel=0.25)
+
+
 def test_library_terms_declare_themselves_and_compose():
     assert set(LIBRARY) == {
         "field_saturation", "thermal_drift", "brush_drop", "armature_reaction",
