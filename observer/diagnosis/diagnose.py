@@ -821,6 +821,14 @@ def decide_verdict(
                 f"residual {max(f.excess_ratio for f in floors.values()):.1f}x the noise floor"
             ]
         description = "a mismatch is located but no candidate removes it: " + "; ".join(words)
+    if verdict == NONE and curved >= set(VOLTAGE_CHANNEL):
+        # Neither winding's voltage is read as the voltage: "adequate" would claim what the
+        # recording cannot show (a back-EMF ripple and a brush drop alike read none here).
+        description = (
+            "no motor effect can be judged from this recording: both windings' voltage "
+            "samples follow a curve of the voltage (see the chain findings), so neither the "
+            "plain model nor an effect can be tested on them; " + description
+        )
     if set_aside and verdict == NONE:
         # Something earned its parameters and cannot be put down to the motor or the chain.
         verdict = UNEXPLAINED

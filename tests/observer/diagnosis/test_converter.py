@@ -263,6 +263,7 @@ def test_a_chopper_sampled_in_step_with_its_pulses_is_a_chain_finding_not_a_moto
     assert "averaged" in folded["va"].advice and "multiple of half" in folded["va"].advice
     assert "no mains ripple" in folded["vf"].description
     assert diag.verdict == NONE, diag.description
+    assert diag.description.startswith("no motor effect can be judged"), diag.description
     # A reading that is not the voltage has no skew against its current to report.
     assert not any(f.kind == "channel_skew" for f in diag.chain)
     # A bridge's field is never judged beside the armature.
