@@ -157,6 +157,7 @@ def run_converter_case(job: dict[str, Any]) -> dict[str, Any]:
     from observer.diagnosis.diagnose import diagnose
     from observer.diagnosis.effects import thermal_rise
     from observer.estimation.motor import MOTORS
+    from observer.estimation.ranges import EstimationError
     from observer.simulation.simulate import simulate
 
     kind, motor, effects, variant = CONVERTER_CASES[job["case"]]
@@ -174,8 +175,14 @@ def run_converter_case(job: dict[str, Any]) -> dict[str, Any]:
     )  # fmt: skip
     chain = drive.chain.to_config() if job["configured"] else None
     t0 = time.perf_counter()
-    diag = diagnose(rec, chain=chain)
     out = dict(job)
+    try:
+        diag = diagnose(rec, chain=chain)
+    except EstimationError as exc:
+        # What `dcobserver diagnose` says instead of a verdict (a wrong answer in the table).
+        out.update(seconds=time.perf_counter() - t0, verdict="error", description=str(exc),
+                   chain=[], right=False)  # fmt: skip
+        return out
     out["seconds"] = time.perf_counter() - t0
     out["verdict"] = diag.verdict
     out["description"] = diag.description
