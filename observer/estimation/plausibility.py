@@ -281,6 +281,11 @@ def _static_armature_fit(
     )
 
 
+#: Below this correlation of the field's voltage with its current (in magnitude) the two do not
+#: go together at all: not an inverted sign (-1), a voltage that does not read the winding's.
+UNCORRELATED = 0.3
+
+
 def _sign_findings(
     signals: Mapping[str, np.ndarray], dt: float, circuits: Sequence[str]
 ) -> list[Finding]:
@@ -288,9 +293,29 @@ def _sign_findings(
     if "field" in circuits and "vf" in signals and "if" in signals:
         vf, i_f = signals["vf"], signals["if"]
         power = float(np.dot(i_f, i_f))
+        v_power = float(np.dot(vf, vf))
         if power > 0:
             rf = float(np.dot(vf, i_f)) / power
-            if rf < 0:
+            # How far the two go together (1: in proportion): an inverted channel reads -1;
+            # a voltage that reads next to nothing of the current's (a field chopper sampled
+            # bare in step with its pulses, always at one phase of them) reads near 0.
+            together = float(np.dot(vf, i_f)) / math.sqrt(power * v_power) if v_power > 0 else 0
+            if rf < 0 and abs(together) < UNCORRELATED:
+                out.append(
+                    Finding(
+                        "error",
+                        "sign",
+                        f"field voltage does not follow the field current (vf/if = {rf:.3g} "
+                        f"ohm, correlation {together:.2f}): check the vf channel's wiring and "
+                        "scaling; a chopper's voltage sampled without a filter in step with its "
+                        "pulses reads one phase of them, not the voltage (filter it, or sample "
+                        "at a rate that is not a multiple of the pulse frequency)",
+                        "vf",
+                        {},
+                        ("field",),
+                    )  # fmt: skip
+                )
+            elif rf < 0:
                 out.append(
                     Finding(
                         "error",

@@ -105,6 +105,21 @@ def test_inverted_channels_are_named(p12, change, severity, fragment):
     assert findings[0].severity == severity and fragment in findings[0].text
 
 
+def test_a_field_voltage_that_reads_nothing_of_its_current_is_not_called_inverted(p12):
+    """A field chopper sampled bare in step with its pulses reads one phase of them: a voltage
+    near zero whatever the current does. Its vf/if is a hair below zero, which was called an
+    inverted sign (with ``--units if=-A`` offered); it is a voltage that does not read the
+    winding, and the message says what to check instead."""
+    t, s, dt = p12
+    rng = np.random.default_rng(3)
+    off = rng.normal(-0.01, 0.4, s["vf"].shape)  # noise around the pulses' off level
+    findings = check_data({**s, "vf": off}, dt, BOTH, t=t)
+    sign = [f for f in findings if f.code == "sign" and f.severity == "error"]
+    assert len(sign) == 1 and sign[0].channel == "vf", findings
+    assert "does not follow the field current" in sign[0].text and not sign[0].suggest
+    assert "in step with its pulses" in sign[0].text
+
+
 def test_milli_and_kilo_channels_upset_the_power_balance(p12):
     t, s, dt = p12
     findings = check_data({**s, "ia": s["ia"] * 1e3}, dt, BOTH, t=t)
