@@ -55,10 +55,10 @@ def _chopper_drive():
     return drive_spec("chopper")
 
 
-def _chopper(rate_hz: float, *, seed: int, duration_s: float):
-    """The P-12 behind :func:`_chopper_drive`."""
+def _chopper(rate_hz: float, *, seed: int, duration_s: float, effects=None, motor=P12):
+    """``motor`` (the P-12) behind :func:`_chopper_drive`, with ``effects``."""
     return simulate(
-        P12, duration_s=duration_s, sample_rate_hz=rate_hz, seed=seed,
+        motor, duration_s=duration_s, sample_rate_hz=rate_hz, seed=seed, effects=effects,
         drive=_chopper_drive(), drive_name="chopper",
     )  # fmt: skip
 
@@ -294,10 +294,7 @@ def test_a_brush_drop_behind_a_chopper_at_10_khz_is_named():
     residual periodic in shaft angle): the pulses' line read as a missing filter, whose
     bound, the line's 31 V, put the drop down to the chain; and the field's floor, taken from
     the spread of its voltage's first differences, was the pulses' ripple."""
-    rec = simulate(
-        P12, duration_s=10.0, sample_rate_hz=10_000.0, seed=1, effects={"brush_drop": 1.0},
-        drive=_chopper_drive(), drive_name="chopper",
-    )  # fmt: skip
+    rec = _chopper(10_000.0, seed=1, duration_s=10.0, effects={"brush_drop": 1.0})
     diag = diagnose(rec)
     assert diag.verdict == "brush_drop", diag.description
     assert not any(f.kind == "no_anti_aliasing" for f in diag.chain)
@@ -307,10 +304,7 @@ def test_a_back_emf_ripple_behind_a_chopper_at_10_khz_is_unexplained_not_none():
     """An effect outside the library behind the chopper: it came back ``none``, under a floor
     that was the field chopper's ripple and a 31 V "alias" bound; now ``unexplained``, with
     the residual described where it is, at 8 times the shaft speed."""
-    rec = simulate(
-        P12, duration_s=10.0, sample_rate_hz=10_000.0, seed=0, effects={"emf_ripple": 0.02},
-        drive=_chopper_drive(), drive_name="chopper",
-    )  # fmt: skip
+    rec = _chopper(10_000.0, seed=0, duration_s=10.0, effects={"emf_ripple": 0.02})
     diag = diagnose(rec)
     assert diag.verdict == UNEXPLAINED, diag.description
     assert "8x shaft speed" in diag.description
@@ -322,10 +316,7 @@ def test_a_field_chopper_s_offsets_per_level_are_the_chain_s_not_a_sensor_offset
     (it "earned" 0.03 V of the field's voltage). The armature's fold, scaled to the field's
     voltage, bounds it: the verdict is ``none`` with the field's ``pulses_folded`` (it was
     ``unexplained``)."""
-    rec = simulate(
-        MOTORS["industrial-440v"], duration_s=10.0, sample_rate_hz=10_000.0, seed=1,
-        drive=_chopper_drive(), drive_name="chopper",
-    )  # fmt: skip
+    rec = _chopper(10_000.0, seed=1, duration_s=10.0, motor=MOTORS["industrial-440v"])
     diag = diagnose(rec)
     assert diag.verdict == NONE, diag.description
     folded = {f.channel for f in diag.chain if f.kind == "pulses_folded"}
@@ -337,10 +328,7 @@ def test_a_current_sensor_offset_behind_a_chopper_at_5_khz_is_not_taken_for_the_
     exceeds what a 0.03 A offset on ia changes (0.077 V), and was read as the chain's. The
     fold's shape is measured, and a constant offset is no part of it: only what the fold
     leaves unexplained (0.057 V) bounds an armature effect, and the offset is named."""
-    rec = simulate(
-        P12, duration_s=10.0, sample_rate_hz=5000.0, seed=3000, effects={"sensor_offset": 0.01},
-        drive=_chopper_drive(), drive_name="chopper",
-    )  # fmt: skip
+    rec = _chopper(5000.0, seed=3000, duration_s=10.0, effects={"sensor_offset": 0.01})
     diag = diagnose(rec)
     assert diag.verdict == "sensor_offset", diag.description
 
