@@ -217,6 +217,16 @@ def armature_linearity(rec: Any) -> Linearity | None:
     return voltage_linearity(rec["va"], rec["ia"], rec.dt, rec["if"], rec["omega"])
 
 
+def linearity_of(
+    rec: Any, linearity: Callable[[], Linearity | None] | None = None
+) -> Callable[[], Linearity | None]:
+    """``linearity`` (the armature reading's linearity test where it is already known), or
+    :func:`armature_linearity` of ``rec``, run on first call and kept."""
+    if linearity is not None:
+        return linearity
+    return functools.cache(functools.partial(armature_linearity, rec))
+
+
 def without_folded_pulses(
     rec: Any, linearity: Callable[[], Linearity | None] | None = None
 ) -> tuple[Any, ChainFinding | None]:
@@ -230,7 +240,7 @@ def without_folded_pulses(
     va = kernel_array(rec["va"])
     if made_by_a_bridge(va, rec.dt):
         return rec, None
-    result = linearity() if linearity is not None else armature_linearity(rec)
+    result = linearity_of(rec, linearity)()
     fold = result.correction if result is not None else None
     if fold is None:
         return rec, None
@@ -644,7 +654,8 @@ def decide_verdict(
     """Stage 6: refit the selected effect on all segments, rank the findings, name the verdict.
 
     ``linearity``: the armature reading's linearity test where it is already known (it is
-    run on ``rec`` otherwise)."""
+    run on ``rec`` otherwise, once)."""
+    linearity = linearity_of(rec, linearity)
     spectra = voltage_spectra(rec, linearity)
     chain = front_end_findings(rec, baseline, spectra, linearity)
     verdict = selection.verdict
@@ -820,7 +831,9 @@ def decide_verdict(
             )
             chain = tuple(
                 pulses_bound_finding(VOLTAGE_CHANNEL[c], spectra[c])
-                for c in sorted(excused & pulsed - unfiltered - curved)
+                for c in sorted(
+                    excused & pulsed - unfiltered - curved - _circuits_with(chain, "pulses_folded")
+                )
             ) + tuple(chain)
     if verdict == NONE and (strong or mismatch or words or excess):
         verdict = UNEXPLAINED
@@ -865,7 +878,7 @@ SLIGHT_GAIN = 0.1
 def _pulse_bounds(
     pulsed: set[str],
     spectra: dict[str, VoltageSpectrum],
-    linearity: Callable[[], Linearity | None] | None,
+    linearity: Callable[[], Linearity | None],
 ) -> dict[str, float]:
     """What a converter's pulses can fold onto each ``pulsed`` winding's reading that an effect
     could be confused with: the field's offsets per level, bounded by the armature's fold
@@ -876,7 +889,7 @@ def _pulse_bounds(
     residual's 0.057 V)."""
     bounds = {c: spectra[c].alias_v for c in pulsed}
     if "armature" in bounds:
-        result = linearity() if linearity is not None else None
+        result = linearity()
         if result is not None and result.fold is not None:
             bounds["armature"] = min(bounds["armature"], result.fold.residual_v)
     return bounds
@@ -1090,11 +1103,10 @@ def voltage_spectra(
     spectra = {c: voltage_spectrum(rec[v], rec.dt) for c, v in VOLTAGE_CHANNEL.items()}
     if not any(s_.line for s_ in spectra.values()):
         return spectra
-    result = linearity() if linearity is not None else armature_linearity(rec)
-    fold = result.fold if result is not None else None
-    if fold is None or result is None:
+    result = linearity_of(rec, linearity)()
+    if result is None or result.fold is None:
         return spectra
-    taken_out = result.correction is not None
+    fold, taken_out = result.fold, result.correction is not None
     return {
         c: dataclasses.replace(
             s_,
@@ -1117,8 +1129,7 @@ def front_end_findings(
     """What the front end shows whatever the motor does: a missing filter, skewed channels,
     front ends nobody told whose mismatch could move an inductance (``linearity``: the
     armature reading's linearity test, where already known)."""
-    if linearity is None:
-        linearity = functools.cache(functools.partial(armature_linearity, rec))
+    linearity = linearity_of(rec, linearity)
     out = []
     for circuit, voltage in VOLTAGE_CHANNEL.items():
         shift, std = baseline.shifts.get(circuit, (0.0, 0.0))
@@ -1155,17 +1166,17 @@ def front_end_findings(
 
 
 def _folded(
-    rec: Any, armature: CircuitEstimate, linearity: Callable[[], Linearity | None] | None
+    rec: Any, armature: CircuitEstimate, linearity: Callable[[], Linearity | None]
 ) -> ChainFinding | None:
     """``voltage_folded`` if the armature's voltage reads a curve of the voltage
     (:mod:`~observer.estimation.linearity`), where the test applies."""
     if not applies_to(armature.intersample):
         return None
-    return folded_finding("va", linearity() if linearity is not None else armature_linearity(rec))
+    return folded_finding("va", linearity())
 
 
 def _field_folded(
-    rec: Any, armature: CircuitEstimate, linearity: Callable[[], Linearity | None] | None
+    rec: Any, armature: CircuitEstimate, linearity: Callable[[], Linearity | None]
 ) -> ChainFinding | None:
     """``voltage_folded`` on ``vf`` where the field is judged beside a folded armature
     (:func:`~observer.estimation.linearity.field_note`: a field chopper on the drive's PWM
@@ -1174,8 +1185,7 @@ def _field_folded(
     at z = 630-2300 against the field current, ``unexplained`` on a healthy motor)."""
     if not applies_to(armature.intersample):
         return None
-    result = linearity() if linearity is not None else armature_linearity(rec)
-    return field_folded_finding("vf", field_note(result, kernel_array(rec["vf"]), rec.dt))
+    return field_folded_finding("vf", field_note(linearity(), kernel_array(rec["vf"]), rec.dt))
 
 
 def _strong(structure: Sequence[ConditionStructure]) -> list[ConditionStructure]:
@@ -1372,7 +1382,7 @@ def diagnose(
     rec, aliased = without_aliased_pulses(rec, chain, seed=seed)
     # The reading's linearity test, once: a reading whose fold is taken out was linear already
     # (and reads no curve without it), one without a fold is tested as it stays.
-    linearity = functools.cache(functools.partial(armature_linearity, rec))
+    linearity = linearity_of(rec)
     rec, folded = without_folded_pulses(rec, linearity)
     baseline = fit_baseline(
         rec, n_particles=baseline_particles, iterations=baseline_iterations, seed=seed,
