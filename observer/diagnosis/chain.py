@@ -291,8 +291,8 @@ def alias_finding(
             f"measurement chain: {channel} carries a converter's pulse line near the Nyquist "
             f"frequency ({spectrum.top_v:.3g} V in the top eighth-band), whose harmonics on "
             f"multiples of the sample rate fold onto the reading as a curve periodic in the "
-            f"voltage of up to {spectrum.alias_v:.3g} V (fitted, too little of the slow error to "
-            f"take out); the structure located ({words}, {offset_v:.3g} V at the winding) is no "
+            f"voltage of up to {spectrum.alias_v:.3g} V (from the fold fitted on the armature's "
+            f"reading); the structure located ({words}, {offset_v:.3g} V at the winding) is no "
             "larger: it is the sampling of the converter's pulses, not the motor",
             PULSES_LINE_ADVICE.format(ch=channel),
         )
