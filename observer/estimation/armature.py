@@ -37,6 +37,7 @@ from observer.estimation.stages import (
     eiv_stage,
     guard_stage,
     jump_stage,
+    offset_stage,
     operating_point_part,
     operating_point_stage,
     search_and_polish,
@@ -238,7 +239,8 @@ def estimate_armature(
     if spec is not None and split_by_voltage:
         spec = operating_point_stage(problem, fit, bounds, spec)
     jump = jump_stage(problem, fit) if polish else None
-    std = std_stage(problem, fit, eiv, spec, jump)
+    offset = offset_stage(problem, fit) if polish else None
+    std = std_stage(problem, fit, eiv, spec, jump, offset)
     point = corrected_point(eiv.point, jump)
     if notch_aliased:
         bands = aliased_bands(problem, va, ia, point.resistance_ohm, point.inductance_h)
