@@ -117,6 +117,8 @@ def test_warm_start_in_a_narrow_range_converges(p12_recording):
     [
         (np.full(100, 220.0), np.zeros(100), "not excited"),
         (np.full(100, 220.0), np.full(100, -1.0), "sign"),
+        # A field chopper sampled bare at its carrier: every sample in its freewheeling phase.
+        (np.tile([0.5, -0.5], 50) - 0.002, np.full(100, 1.1), "does not read"),
         (np.full(5, 220.0), np.full(5, 1.0), "at least 10"),
         (np.r_[np.full(99, 220.0), np.nan], np.full(100, 1.0), "NaN"),
     ],
