@@ -664,11 +664,13 @@ def decide_verdict(
     if confounded:
         # Not told apart from the channels' front ends: the best choice without it.
         set_aside, verdict = verdict, _best_without(selection, cands, confounded)
+    # The data between the voltage's jumps, built once for whichever of the two tests asks.
+    switched = functools.cache(functools.partial(switched_data, rec, baseline))
     jumps: tuple[ChainFinding, ...] = ()
     across = ""
     if verdict != NONE:
         verdict, jumps, across = _without_contradicted(
-            rec, baseline, floors, cands, selection, verdict, confounded
+            switched, floors, cands, selection, verdict, confounded
         )
         chain = (*jumps, *chain)
     if verdict != NONE:
@@ -803,7 +805,7 @@ def decide_verdict(
             return Verdict(verdict, description, findings, structure, chain)
     excess = {c for c, f in floors.items() if f.excess_ratio > UNEXPLAINED_EXCESS}
     if verdict == NONE and not words and (strong or mismatch):
-        found = chain_explains(rec, baseline, floors, located, strong)
+        found = chain_explains(rec, baseline, floors, located, strong, switched)
         if not found and not mismatch:
             found = alias_explains(baseline, floors, strong, spectra)
         if found:
@@ -1242,8 +1244,7 @@ def switched_data(rec: Any, baseline: Baseline) -> tuple[FitData, list[tuple[str
 
 
 def _without_contradicted(
-    rec: Any,
-    baseline: Baseline,
+    switched: Callable[[], tuple[FitData, list[tuple[str, float]]] | None],
     floors: dict[str, NoiseFloor],
     cands: Candidates,
     selection: Selection,
@@ -1274,13 +1275,14 @@ def _without_contradicted(
     (+9 % held out, -1 and -9 % between the jumps; their field's evidence, 27 %, is one slow
     trend, a few independent samples, and cannot carry the effect alone).
 
-    ``excluded``: effects already set aside (never chosen instead). Returns the verdict,
+    ``switched``: :func:`switched_data` of the recording, on call. ``excluded``: effects
+    already set aside (never chosen instead). Returns the verdict,
     ``jumps_between_samples`` findings, and a note ("" if nothing was contradicted).
     """
-    switched = switched_data(rec, baseline)
-    if switched is None:
+    between_jumps = switched()
+    if between_jumps is None:
         return verdict, (), ""
-    alt, changed = switched
+    alt, changed = between_jumps
     scorer = HoldoutScorer(alt, cands, floors)
     evid = selection.evidence
     dropped: dict[str, dict[str, Any]] = {}  # contradicted between the jumps
@@ -1297,7 +1299,6 @@ def _without_contradicted(
             # it replaces was fitted to the jumps' reconstruction, which others fit too (the
             # healthy P-12 above: a current-sensor offset, +2.8 % held out, -0.5 % between).
             unsupported.append(verdict)
-            bad = {verdict: between[verdict]}
         elif not bad:
             break
         else:
@@ -1350,6 +1351,7 @@ def chain_explains(
     floors: dict[str, NoiseFloor],
     located: Located,
     strong: Sequence[ConditionStructure],
+    switched: Callable[[], tuple[FitData, list[tuple[str, float]]] | None] | None = None,
 ) -> tuple[ChainFinding, ...]:
     """Chain findings, if leaving out the intervals across the voltage jumps removes the structure.
 
@@ -1361,12 +1363,13 @@ def chain_explains(
     parameters, simulated only between the transitions (``switched``), shows
     no structure or window against the same floors, the structure is the
     chain's. Physics (a brush drop, a thermal rise, a ripple in shaft angle)
-    stays in the residual between the jumps as well.
+    stays in the residual between the jumps as well. ``switched``: :func:`switched_data` of
+    ``rec``, where it is already at hand (else it is built).
     """
-    switched = switched_data(rec, baseline)
-    if switched is None:
+    between_jumps = switched() if switched is not None else switched_data(rec, baseline)
+    if between_jumps is None:
         return ()
-    alt, changed = switched
+    alt, changed = between_jumps
     rf, ra, _ = alt.residuals(baseline.full, *alt.whole_record)
     mismatch, structure = locate(rec, {"field": rf, "armature": ra}, floors, located.conditions)
     if mismatch or _strong(structure):

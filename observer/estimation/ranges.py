@@ -99,19 +99,20 @@ def field_search_range(vf: np.ndarray, i_f: np.ndarray, dt: float) -> SearchRang
     if power <= 0 or np.sqrt(power / n) < 1e-9:
         raise EstimationError("the field current is zero: the field circuit is not excited")
     r0 = float(np.dot(vf, i_f)) / power
-    mean_v = float(np.mean(vf))
-    rms_v = float(np.sqrt(np.mean(vf * vf)))
-    if not r0 > 0 and abs(mean_v) < ZERO_MEAN_SHARE * rms_v:
-        # Not a sign: no voltage at all on average while the current flows (a field chopper
-        # sampled bare at its carrier frequency reads its freewheeling phase every time).
-        raise EstimationError(
-            f"the field voltage reads about zero on average ({mean_v:.3g} V, rms {rms_v:.3g} V) "
-            f"while the field current is {float(np.mean(i_f)):.3g} A: the channel does not read "
-            "the winding's voltage (a converter's pulses sampled in step with the ADC and no "
-            "anti-aliasing filter, or the channel not connected); check the vf channel and its "
-            "front end ([chain])"
-        )
     if not r0 > 0:
+        mean_v = float(np.mean(vf))
+        rms_v = float(np.sqrt(np.mean(vf * vf)))
+        if abs(mean_v) < ZERO_MEAN_SHARE * rms_v:
+            # Not a sign: no voltage at all on average while the current flows (a field
+            # chopper sampled bare at its carrier frequency reads its freewheeling phase
+            # every time).
+            raise EstimationError(
+                f"the field voltage reads about zero on average ({mean_v:.3g} V, rms "
+                f"{rms_v:.3g} V) while the field current is {float(np.mean(i_f)):.3g} A: the "
+                "channel does not read the winding's voltage (a converter's pulses sampled in "
+                "step with the ADC and no anti-aliasing filter, or the channel not connected); "
+                "check the vf channel and its front end ([chain])"
+            )
         raise EstimationError(
             f"field voltage and current do not correlate positively (vf/if = {r0:.3g} ohm): "
             "check the sign and scaling of the field channels"
