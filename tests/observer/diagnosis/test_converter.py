@@ -83,6 +83,28 @@ def test_the_voltage_spectrum_tells_a_filtered_converter_from_an_unfiltered_one(
     assert s_i.alias_v < s_f.alias_v < 0.1 * s_u.alias_v
 
 
+@pytest.mark.parametrize(("motor", "rate_hz"), [("p12", 4000.0), ("industrial-440v", 4000.0)])
+def test_a_sparse_comb_behind_a_filter_is_not_read_as_a_missing_one(motor, rate_hz):
+    """At 4 kHz a 6-pulse bridge's 300 Hz lines put one line in ``[fs/4, 3fs/8)`` and two in
+    the top eighth-band: the neighbouring bands' ratio read 0.68-0.69 behind 2nd-order
+    Butterworths at fs/4, and diagnose reported a missing anti-aliasing filter. Over two
+    octaves the filter's fall shows; with no filter (3.5 kHz, the lowest ratio of 11 rates)
+    the spectrum stays flat."""
+    rec = simulate(
+        MOTORS[motor], duration_s=3.0, sample_rate_hz=rate_hz, seed=3000, drive=REALISTIC,
+        drive_name="realistic",
+    )  # fmt: skip
+    bare = simulate(
+        MOTORS[motor], duration_s=3.0, sample_rate_hz=3500.0, seed=3000, drive=NO_FILTER,
+        drive_name="realistic",
+    )  # fmt: skip
+    s_f = voltage_spectrum(rec["va"], rec.dt)
+    s_u = voltage_spectrum(bare["va"], bare.dt)
+    assert s_f.ratio > 0.65  # the neighbouring bands alone would call it flat
+    assert not s_f.flat and no_filter_finding("va", s_f) is None
+    assert s_u.flat
+
+
 def test_a_chopper_pulse_line_near_nyquist_is_not_read_as_a_missing_filter():
     """A filtered chopper's 4 kHz pulse line sits in the top band at 10 kHz, tens of times the
     band below it: not a comb that does not fall, so no ``no_anti_aliasing``; sampled bare, its
