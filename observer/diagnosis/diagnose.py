@@ -60,6 +60,7 @@ from observer.diagnosis.chain import (
     field_folded_finding,
     folded_finding,
     front_end_finding,
+    locked_finding,
     no_filter_finding,
     pulses_bound_finding,
     pulses_folded_finding,
@@ -92,8 +93,14 @@ from observer.diagnosis.results import (
 )
 from observer.estimation import CircuitEstimate, estimate_armature, estimate_field
 from observer.estimation.armature import aliased_bands, armature_problem
+from observer.estimation.filter_id import identify_voltage_filter
 from observer.estimation.frontend import winding_front_ends
-from observer.estimation.intersample import MIN_SWITCHED_SHARE, InputModel, find_switching
+from observer.estimation.intersample import (
+    MIN_SWITCHED_SHARE,
+    InputModel,
+    alias_factor,
+    find_switching,
+)
 from observer.estimation.linearity import (
     Linearity,
     applies_to,
@@ -1170,10 +1177,32 @@ def front_end_findings(
                 kernel_array(rec[CURRENT_CHANNEL[circuit]]),
                 rec.dt,
             ),
+            # The field bridge's jumps are locked at 2, 5 and 10 kHz on 50 Hz mains and put
+            # back between the samples (:mod:`observer.estimation.dealias`); the armature's
+            # are not (a 6-pulse bridge's jumps come too close together). A chopper's edges
+            # locked to the samples are its pulses folded, whose own findings
+            # (``pulses_folded``, ``voltage_folded``) say what they do.
+            locked_finding(voltage, kernel_array(rec[voltage]), rec.dt, _alias_of(rec, voltage))
+            if circuit == "armature"
+            and folded is None
+            and made_by_a_bridge(kernel_array(rec[voltage])[: int(round(1.0 / rec.dt))], rec.dt)
+            else None,
         ):
             if found is not None:
                 out.append(found)
     return tuple(out)
+
+
+def _alias_of(rec: Any, channel: str) -> Callable[[], float]:
+    """The aliasing factor of ``channel``'s filter as its converter jumps show it
+    (:func:`~observer.estimation.filter_id.identify_voltage_filter`; not identified: the
+    weakest filter in use, an RC at fs/4), computed when asked."""
+
+    def factor() -> float:
+        fit = identify_voltage_filter(kernel_array(rec[channel]), rec.dt)
+        return fit.alias if fit.alias is not None else alias_factor(None, 1.0 / rec.dt)
+
+    return factor
 
 
 def _folded(
