@@ -93,7 +93,7 @@ from observer.diagnosis.results import (
 )
 from observer.estimation import CircuitEstimate, estimate_armature, estimate_field
 from observer.estimation.armature import aliased_bands, armature_problem
-from observer.estimation.filter_id import identify_voltage_filter
+from observer.estimation.estimate import voltage_filter
 from observer.estimation.frontend import winding_front_ends
 from observer.estimation.intersample import (
     MIN_SWITCHED_SHARE,
@@ -1158,8 +1158,9 @@ def front_end_findings(
             if circuit == "armature"
             else _field_folded(rec, baseline.armature, linearity)
         )
+        v = kernel_array(rec[voltage])
         for found in (
-            pwm_finding(voltage, kernel_array(rec[voltage])),
+            pwm_finding(voltage, v),
             folded,
             no_filter_finding(voltage, spectra[circuit]),
             # A reading that is not the voltage has no delay against the current to speak of
@@ -1173,7 +1174,7 @@ def front_end_findings(
             current_filter_finding(
                 voltage,
                 CURRENT_CHANNEL[circuit],
-                kernel_array(rec[voltage]),
+                v,
                 kernel_array(rec[CURRENT_CHANNEL[circuit]]),
                 rec.dt,
             ),
@@ -1182,10 +1183,10 @@ def front_end_findings(
             # are not (a 6-pulse bridge's jumps come too close together). A chopper's edges
             # locked to the samples are its pulses folded, whose own findings
             # (``pulses_folded``, ``voltage_folded``) say what they do.
-            locked_finding(voltage, kernel_array(rec[voltage]), rec.dt, _alias_of(rec, voltage))
+            locked_finding(voltage, v, rec.dt, _alias_of(rec, circuit))
             if circuit == "armature"
             and folded is None
-            and made_by_a_bridge(kernel_array(rec[voltage])[: int(round(1.0 / rec.dt))], rec.dt)
+            and made_by_a_bridge(v[: int(round(1.0 / rec.dt))], rec.dt)
             else None,
         ):
             if found is not None:
@@ -1193,14 +1194,14 @@ def front_end_findings(
     return tuple(out)
 
 
-def _alias_of(rec: Any, channel: str) -> Callable[[], float]:
-    """The aliasing factor of ``channel``'s filter as its converter jumps show it
-    (:func:`~observer.estimation.filter_id.identify_voltage_filter`; not identified: the
-    weakest filter in use, an RC at fs/4), computed when asked."""
+def _alias_of(rec: Any, circuit: str) -> Callable[[], float]:
+    """The aliasing factor of ``circuit``'s voltage filter as the estimator identifies it
+    (:func:`~observer.estimation.estimate.voltage_filter`; not identified: the weakest filter
+    in use, an RC at fs/4), computed when asked."""
 
     def factor() -> float:
-        fit = identify_voltage_filter(kernel_array(rec[channel]), rec.dt)
-        return fit.alias if fit.alias is not None else alias_factor(None, 1.0 / rec.dt)
+        alias = voltage_filter(rec, circuit).alias
+        return alias if alias is not None else alias_factor(None, 1.0 / rec.dt)
 
     return factor
 
