@@ -97,7 +97,7 @@ FLAT_RATIO = 0.65
 #: 2nd-order Butterworths at fs/4 the P-12's and the 440 V motor's armature read 0.68-0.69 at
 #: 4 kHz, as much as no filter at 3.5 kHz. Over the wider span, with more lines on each side,
 #: no filter keeps 0.38-0.68 (both motors, 2-10 kHz; 20 seeds at 2, 5, 10 kHz, one at 8 more
-#: rates), those Butterworths 0.09-0.27; an RC at fs/4 0.12-0.43.
+#: rates), those Butterworths 0.09-0.27; an RC at fs/4 0.10-0.43.
 FLAT_WIDE_RATIO = 0.3
 #: ... and at least this share of the voltage's standard deviation (not the noise of a
 #: drive that changes its held voltage every sample).
