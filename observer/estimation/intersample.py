@@ -683,17 +683,62 @@ def segments_between(jumps: np.ndarray, min_length: int = MIN_SEGMENT) -> Segmen
     return Segments(np.array(starts, dtype=np.int64), np.array(ends, dtype=np.int64), n)
 
 
+#: Fewest isolated samples at one extreme value that can show a clamp (:func:`rail_samples`).
+CLAMPED_MIN = 3
+#: How far below a clamped extreme (a share of it) the samples on one side of it lie, at the
+#: median: a filter's overshoot falls back by its size (a 4th-order Butterworth's 11 %), or the
+#: sample is across the jump; a sine's rounded top sampled 9-11 degrees apart (50-60 Hz mains
+#: at 2 kHz) falls by 1.2-1.8 %.
+CLAMPED_DEPTH = 0.05
+
+
+def _clamped(y: np.ndarray, at: np.ndarray) -> bool:
+    """Whether isolated samples of ``y`` at its extreme (``at``) are clamped: the value recurs
+    exactly, more than twice as often as all values within three quantisation steps below it
+    (the window's smallest difference of values: a noisy level spreads over them), while the
+    samples on one side of it lie well below it (:data:`CLAMPED_DEPTH`) and scatter by more
+    than three steps. A peak repeated by a waveform sampled in step with its period repeats
+    its neighbours as well; a sine's rounded top, repeated in a noise-free recording whose
+    firing angle moves, has them close by."""
+    idx = np.flatnonzero(at)
+    if idx.size < CLAMPED_MIN:
+        return False
+    values = np.unique(y)
+    if values.size < 2:
+        return False
+    step = float(np.min(np.diff(values)))
+    extreme = float(y[idx[0]])
+    if idx.size <= 2 * np.count_nonzero((y < extreme) & (y >= extreme - 3.0 * step)):
+        return False
+    for beside in (idx[idx + 1 < y.shape[0]] + 1, idx[idx > 0] - 1):
+        if beside.size < CLAMPED_MIN:
+            continue
+        near = y[beside]
+        deep = extreme - float(np.median(near)) > CLAMPED_DEPTH * abs(extreme)
+        # (And beyond a float's rounding: an unquantised, noise-free waveform's repeats.)
+        scatter = float(np.ptp(near))
+        if deep and scatter > 3.0 * step and scatter > 1e-6 * abs(extreme):
+            return True
+    return False
+
+
 def rail_samples(x: np.ndarray) -> np.ndarray:
     """Samples at an ADC's rail: the channel clipped, its value says nothing beyond the rail.
 
-    A clipped channel piles up at its extreme value and stays there: the
-    largest (or smallest) value of the window is held for consecutive samples
-    and occurs more than twice as often as all values within three
-    quantisation steps below it together (a rounded sine top spreads over
-    those steps; a periodic waveform sampled in step with its period repeats
-    its peak, but not in consecutive samples). Only extremes
-    at the channel's largest magnitude count, so a current resting at zero in
-    discontinuous conduction is never taken for a rail.
+    A clipped channel piles up at its extreme value: the largest (or
+    smallest) value of the window occurs more than twice as often as all
+    values within three quantisation steps below it together (a rounded
+    sine top spreads over those steps) and is held for consecutive samples,
+    or recurs in isolated samples whose neighbours scatter
+    (:func:`_clamped`): a filter's overshoot after each of a converter's
+    jumps, clipped one sample a pulse (a 4th-order Butterworth's 11 %
+    on a field bridge in inversion, where the jump ends near the supply's
+    peak: 0.2-1 V of error in the field voltage's mean that changed with
+    the firing angle, and Lf read from a window across a change of the
+    field's level +2 % off at 7 std). A periodic waveform sampled in step
+    with its period repeats its peak and its peak's neighbours alike. Only
+    extremes at the channel's largest magnitude count, so a current resting
+    at zero in discontinuous conduction is never taken for a rail.
     """
     out = np.zeros(x.shape[0], dtype=bool)
     if x.shape[0] < 3:
@@ -714,7 +759,7 @@ def rail_samples(x: np.ndarray) -> np.ndarray:
         step = float(np.min(np.diff(np.append(below, extreme)))) if below.size else 0.0
         near = int(np.count_nonzero((y < extreme) & (y >= extreme - 3.0 * step))) if step else 0
         held = bool(np.any(at[1:] & at[:-1]))
-        if count > 2 * near and held:
+        if (count > 2 * near and held) or (not held and _clamped(y, at)):
             out |= at
     return out
 
