@@ -683,8 +683,9 @@ def segments_between(jumps: np.ndarray, min_length: int = MIN_SEGMENT) -> Segmen
     return Segments(np.array(starts, dtype=np.int64), np.array(ends, dtype=np.int64), n)
 
 
-#: Fewest isolated samples at one extreme value that can show a clamp (:func:`rail_samples`).
-CLAMPED_MIN = 3
+#: Fewest isolated samples at one extreme value that can show a clamp (:func:`rail_samples`): three
+#: recurred in 4 of 270 simulated recordings at 0.2 % noise where no sample reached the rail.
+CLAMPED_MIN = 5
 #: How far below a clamped extreme (a share of it) the samples on one side of it lie, at the
 #: median: a filter's overshoot falls back by its size (a 4th-order Butterworth's 11 %), or the
 #: sample is across the jump; a sine's rounded top sampled 9-11 degrees apart (50-60 Hz mains
