@@ -62,6 +62,15 @@ MODEL_FLOOR = {"R": 0.001, "L": 0.002, "K": 0.0005}
 #: reference voltage does not show.
 OFFSET_SHARE = 0.001
 
+#: Untold front ends: the EMF's timing against the current's, one-sigma, in sample periods.
+#: A multiplexed ADC samples its channels one after another within a period (an encoder's
+#: speed taken over a period lags by half of one); the voltage's delay behind the current is
+#: fitted (``shift``), the speed's is not, and the EMF read that late errs by
+#: ``K*if*domega/dt`` times it. On the 60 V traction motor (small inertia) at 2 kHz with the
+#: speed sampled half a period after the current, 7 % of the published Ra windows were
+#: outside 2.5 std; the P-12 behind the bench's ``thyristor-skew`` ADC, 12 %.
+SPEED_DELAY_PRIOR = 0.5
+
 #: A voltage with transitions (jumps, filtered or not) in this share of its intervals is a
 #: converter's measured voltage, never a drive's held reference: a 6-pulse bridge at 5 kHz
 #: shows them in ~15 % of intervals, a reference only at its rare setpoint steps.
@@ -984,13 +993,15 @@ def jump_stage(problem: WindingProblem, fit: PolishedFit) -> JumpAlias | None:
 
 @dataclass(frozen=True)
 class OffsetFit:
-    """The armature voltage reading's offset, measured in a window (:func:`offset_stage`).
+    """The armature voltage reading's offset, measured in a window (:func:`offset_stage`), or
+    the speed channel's delay (:func:`speed_delay`).
 
     Attributes
     ----------
     size, std : float
-        Its posterior mean and standard deviation (V; its prior: zero, with
-        :data:`OFFSET_SHARE` of the window's mean ``|va|``).
+        Its posterior mean and standard deviation (V, or sample periods; its prior: zero,
+        with :data:`OFFSET_SHARE` of the window's mean ``|va|``, or
+        :data:`SPEED_DELAY_PRIOR`).
     spread, common : (3,) arrays
         The one-sigma move of ``ln R, ln L, K`` it leaves in the estimate (the posterior
         mean's and spread's), and the part of it every window shares (an offset is the same in
@@ -1025,7 +1036,16 @@ def offset_stage(problem: WindingProblem, fit: PolishedFit) -> OffsetFit | None:
     prior = OFFSET_SHARE * float(np.mean(np.abs(problem.voltage)))
     if not prior > 0.0:
         return None
-    move, coefficient, s = _measured_column(problem, fit, problem.offset_moments())
+    return _with_prior(problem, fit, problem.offset_moments(), prior)
+
+
+def _with_prior(
+    problem: WindingProblem, fit: PolishedFit, moments: np.ndarray, prior: float
+) -> OffsetFit:
+    """A nuisance voltage change of moments ``moments`` per unit, prior zero with standard
+    deviation ``prior``, measured in the window (:func:`_measured_column`): its posterior
+    and the moves of ``ln R, ln L, K`` it leaves."""
+    move, coefficient, s = _measured_column(problem, fit, moments)
     moves = np.abs(move[:3])
     if not math.isfinite(coefficient) or math.isinf(s):
         return OffsetFit(0.0, prior, moves * prior, moves * prior)
@@ -1034,6 +1054,31 @@ def offset_stage(problem: WindingProblem, fit: PolishedFit) -> OffsetFit | None:
     spread = moves * math.hypot(size, posterior)
     common = moves * math.hypot(size, posterior * posterior / prior)
     return OffsetFit(size, posterior, spread, common)
+
+
+def speed_delay(problem: WindingProblem, fit: PolishedFit) -> OffsetFit | None:
+    """The EMF's timing against the current's, a nuisance parameter measured.
+
+    Front ends untold, the speed may be sampled late (a multiplexed ADC, an encoder's
+    speed taken over a period): prior zero with :data:`SPEED_DELAY_PRIOR` sample periods
+    as its standard deviation. Read that late, the EMF errs by ``K*if*domega/dt`` times
+    it. The window measures the misfit along that direction (as :func:`offset_stage`
+    measures the offset) and the std carries its move as measured, with the posterior's
+    spread; where the speed barely changes the move is small whatever the delay. What is
+    measured is the misfit, not the channel's delay alone (the speed the EMF uses is
+    reconstructed through the shaft's equation, :mod:`.mechanics`, which has its own
+    timing): on the traction motor with the speed half a period late, 1 s windows read
+    -0.76 to +0.27 periods, and -0.75 to +0.48 with none. The estimate keeps it, as it keeps
+    the offset. None: front ends configured, a held or switched voltage, or no ``K``
+    fitted.
+    """
+    if not (problem.untold_front_end and problem.emf is not None and problem.fits_k):
+        return None
+    # The EMF's change per sample of delay, as the voltage change it makes (the winding
+    # sees v - K*emf).
+    late = smooth_moments(problem.emf, problem.inp.segments, 1.0) - problem.mu_emf
+    k_now = float(problem.unpack(fit.theta)[2])
+    return _with_prior(problem, fit, -k_now * late, SPEED_DELAY_PRIOR)
 
 
 def corrected_point(point: WindingPoint, jump: JumpAlias | None) -> WindingPoint:
@@ -1147,6 +1192,11 @@ def std_stage(
             mismatch[:k] = untold.total
             # A mismatch of the channels is the chain's, the same in every window.
             shared[:k] = np.hypot(shared[:k], untold.common)
+        speed = speed_delay(problem, fit)
+        if speed is not None:
+            offset[:k] = np.hypot(offset[:k], speed.spread[:k])
+            # The chain's own delay: the same in every window.
+            shared[:k] = np.hypot(shared[:k], speed.common[:k])
         if jump is not None:
             # The jumps' common area error: its measured move and its spread.
             offset[:k] = np.hypot(offset[:k], jump.spread[:k])

@@ -27,6 +27,7 @@ from observer.estimation.stages import (
     polish_stage,
     settled_stage,
     specification_stage,
+    speed_delay,
     std_stage,
     swarm_stage,
 )
@@ -128,14 +129,20 @@ def test_a_measured_voltage_adds_an_unknown_offset_and_the_model_floor(window):
         )
     moves = _untold_mismatch(problem, fit, shapes, tau_samples, 3).total
     assert 0 < moves[1]
+    # ... and the EMF's timing, as the window measures it (the speed may be sampled late).
+    late = speed_delay(problem, fit)
+    assert late is not None
+    timing = late.spread
     assert std["R"] == pytest.approx(
-        np.linalg.norm([r * bound[0], r * bias[0], r * floor["R"], r * moves[0]])
+        np.linalg.norm([r * bound[0], r * bias[0], r * floor["R"], r * moves[0], r * timing[0]])
     )
     assert std["L"] == pytest.approx(
-        np.linalg.norm([ell * bound[1], ell * bias[1], ell * floor["L"], ell * moves[1]])
+        np.linalg.norm(
+            [ell * bound[1], ell * bias[1], ell * floor["L"], ell * moves[1], ell * timing[1]]
+        )
     )
     assert std["K"] == pytest.approx(
-        np.linalg.norm([bound[2], bias[2], abs(k) * floor["K"], moves[2]])
+        np.linalg.norm([bound[2], bias[2], abs(k) * floor["K"], moves[2], timing[2]])
     )
     # The offset is what Ra and K cannot be told apart from: it widens them.
     plain = crlb_std(fit.jacobian, fit.point.residual, tau_samples)
