@@ -138,6 +138,14 @@ class PolishedFit:
     theta: np.ndarray
     jacobian: np.ndarray
 
+    @functools.cached_property
+    def qr(self) -> tuple[np.ndarray, np.ndarray]:
+        """The Jacobian's QR factors, computed once: every nuisance column measured beside
+        it (the jumps' area, the offset, the EMF's timing, the voltage errors' moves) solves
+        against the same Jacobian (0.3 ms a factorisation at 10 kHz)."""
+        q, r = np.linalg.qr(self.jacobian)
+        return q, r
+
 
 @dataclass(frozen=True)
 class EivCorrection:
@@ -835,7 +843,7 @@ def _untold_mismatch(
     # One factorisation of the base for every column (a tall least squares per column
     # took a millisecond each): the columns' moves, and each one's size from its part
     # the base cannot take up.
-    q, r_base = np.linalg.qr(base)
+    q, r_base = fit.qr if base is fit.jacobian else np.linalg.qr(base)
     along = _solve_tall(base, np.column_stack([shapes, residual]), (q, r_base))
     moves = np.abs(along[:k, :-1])
     perpendicular = shapes - q @ (q.T @ shapes)
@@ -929,7 +937,7 @@ def _measured_column(
     column = problem.moment_columns(theta, [moments])[:, 0]
     base = fit.jacobian
     residual = fit.point.residual
-    q, r = np.linalg.qr(base)
+    q, r = fit.qr
     move, along = _solve_tall(base, np.column_stack([column, residual]), (q, r)).T
     perpendicular = column - q @ (q.T @ column)
     tau_samples = math.exp(theta[1] - theta[0]) / problem.dt
@@ -1168,7 +1176,7 @@ def std_stage(
         # bridge, so it does not average out over the window).
         k = 3 if problem.fits_k else 2
         # The parameters' moves per volt of each error (one solve for every column).
-        per_volt = np.abs(_solve_tall(fit.jacobian, columns[:, :n_direct])[:k])
+        per_volt = np.abs(_solve_tall(fit.jacobian, columns[:, :n_direct], fit.qr)[:k])
         if offset_fit is not None:
             # Measured (offset_stage): what its posterior leaves.
             offset[:k] = offset_fit.spread[:k]
