@@ -1128,14 +1128,15 @@ def std_stage(
     A measured voltage whose front ends are not configured adds the moves the
     commonest mismatch of the channels would cause
     (:func:`~observer.estimation.frontend.unknown_mismatch`): its gain at the
-    ripple moves ``L`` whole, its phase in transients ``R`` and ``K``.
+    ripple moves ``L`` whole, its phase in transients ``R`` and ``K``; on the
+    armature also the EMF's timing as the window measures it (:func:`speed_delay`).
 
     For a measured voltage the result also holds ``shared_R``, ``shared_L``
     (and ``shared_K``): the part of the std that every window at the same
     operating point shares, a bias averaging windows does not shrink -- the
     sensor's offset, the alias of jumps locked to the samples (the
-    ``steady`` term of the pieces whose jumps are locked), and an untold
-    mismatch of the channels' front ends.
+    ``steady`` term of the pieces whose jumps are locked), an untold
+    mismatch of the channels' front ends, and the EMF's timing.
     """
     theta = fit.theta
     tau_samples = math.exp(theta[1] - theta[0]) / problem.dt
