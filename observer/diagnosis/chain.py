@@ -142,6 +142,10 @@ SKEW_ADVICE = (
     "configure the front ends in [chain] (filter of each channel, delay_us of a multiplexed ADC) "
     "or filter the voltage and current channels alike"
 )
+AVERAGED_ADVICE = (
+    "nothing is needed for the estimate; configure it as [chain.{ch}] averaging = true so "
+    "the estimator models the mean instead of fitting a delay"
+)
 FRONT_END_ADVICE = (
     "configure the {ch} and {cur} channels' front ends in [chain] (filter kind, order and "
     "cutoff of each): the estimator then models them exactly"
@@ -354,6 +358,19 @@ def skew_finding(
         f"+-{shift_std:.2g}) behind {early} (fitted by the estimator): the two channels have "
         "different anti-aliasing filters or are sampled one after another",
         SKEW_ADVICE,
+    )
+
+
+def averaged_finding(voltage: str, current: str, shift_samples: float) -> ChainFinding:
+    """``voltage_averaged``: an untold voltage channel that reads as its mean over each period."""
+    return ChainFinding(
+        voltage,
+        "voltage_averaged",
+        f"measurement chain: {voltage} reads as the voltage averaged over each sample period "
+        f"(an integrating ADC), half a period behind {current} ({shift_samples:.3f} sample "
+        "periods fitted as a delay); the mean over each period, with no delay, describes the "
+        "armature's converter ripple better than any delay: the baseline is fitted so",
+        AVERAGED_ADVICE.format(ch=voltage),
     )
 
 
