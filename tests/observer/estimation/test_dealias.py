@@ -123,7 +123,10 @@ def test_an_untold_rc_on_the_field_voltage_no_longer_costs_the_inductance(monkey
     """8 s of a P-12 behind the thyristor drive at 2 kHz, an RC at fs/4 on the voltages and a
     Butterworth on the currents, nothing configured (``estimate``'s path: the filter is
     identified from the jumps, then its jumps are put back). Without the reconstruction the
-    field's inductance was 14 % off (its std, as wide, said so: held); with it, within 1 %."""
+    field's inductance was 14 % off (its std, as wide, said so: held); with it, within 1 %.
+    (Its std, 3.9 %, is mostly the alias each quarter of the recording may keep, moving L
+    through the delay of the RC against the Butterworth, -0.25 periods; the jumps put back
+    at a delay they were not tabulated for had found -0.03 and read 1.4 %.)"""
     from bench.accuracy_rates import drive_spec, front_end_drive
     from observer.estimation import estimate_recording, field
     from observer.estimation.motor import P12
@@ -135,7 +138,58 @@ def test_an_untold_rc_on_the_field_voltage_no_longer_costs_the_inductance(monkey
     assert est.voltage_filter is not None and est.voltage_filter["best"].startswith("rc1@")
     assert abs(est.inductance_h / P12.field_inductance_h - 1) < 0.01
     assert abs(est.resistance_ohm / P12.field_resistance_ohm - 1) < 0.005
-    assert est.std["L"] / P12.field_inductance_h < 0.02
+    assert est.std["L"] / P12.field_inductance_h < 0.05
+    assert -0.35 < est.shift_samples < -0.15  # the RC leads the Butterworth by about 0.25
     monkeypatch.setattr(field, "DEALIASED", False)
     plain = estimate_recording(rec, chain=None)["field"]
     assert abs(plain.inductance_h / P12.field_inductance_h - 1) > 0.05
+
+
+@pytest.mark.parametrize("kind", ["rc1", "butter2"])
+@pytest.mark.parametrize("shift", [-0.3, 0.45])
+def test_the_moments_read_late_are_those_of_the_filtered_waveform_read_late(
+    kind: str, shift: float
+) -> None:
+    """A relative delay the estimator fits or learned (untold channels filtered apart: an RC
+    voltage beside Butterworth currents reads about -0.28 periods) reads the moments over
+    intervals moved by it. The jumps sit where they sit between the samples; tabulated at
+    their place less the delay, the band-limited reading's miss was taken at a sampling of
+    the jump that never happened: the traction motor's field read Rf +1.1 % at 5 std over a
+    whole recording, and -0.1 % to +1.3 % as the delay went from +0.1 to -0.3."""
+    fe = front(kind)
+    tf, v, _ = bridge_voltage()
+    n = int(FS)
+    filtered = through(fe, v)
+    samples = np.interp(np.arange(n), tf, filtered)
+    # The filtered waveform's means over [k + shift, k + 1 + shift] (fine grid: 1/SUB samples).
+    area = np.concatenate([[0.0], np.cumsum(filtered) / SUB])
+    edges = np.arange(n) + shift
+    inside = (edges >= 1) & (edges + 1 <= tf[-1])
+    at = np.interp(edges, tf + 0.5 / SUB, area[1:])
+    target = (np.interp(edges + 1, tf + 0.5 / SUB, area[1:]) - at)[: n - 1]
+    plain = smooth_moments(samples, Segments.whole(n), shift)[:, 0]
+    starts, _ = jump_runs(samples, find_switching(samples, 1 / FS).transition_mask)
+    rec = dealias.reconstruction(samples, 1 / FS, starts, fe, None)
+    assert rec is not None
+    fixed = rec.correct(smooth_moments(samples, Segments.whole(n), shift), shift)[:, 0]
+    inner = slice(40, n - 41)
+    ok = inside[: n - 1][inner]
+    before = (plain[inner] - target[inner])[ok]
+    after = (fixed[inner] - target[inner])[ok]
+    assert ripple(after) < 0.1 * ripple(before)
+    assert abs(np.mean(after)) < 0.1 * abs(np.mean(before))
+    assert math.sqrt(np.mean(after**2)) < 0.4 * math.sqrt(np.mean(before**2))
+
+
+def test_the_unshifted_target_of_the_shifted_test_is_the_interval_means() -> None:
+    """The shifted test's reference at no delay is the point-by-point interval mean."""
+    fe = front("rc1")
+    tf, v, _ = bridge_voltage()
+    n = int(FS)
+    filtered = through(fe, v)
+    area = np.concatenate([[0.0], np.cumsum(filtered) / SUB])
+    edges = np.arange(n, dtype=float)
+    at = np.interp(edges, tf + 0.5 / SUB, area[1:])
+    target = (np.interp(edges + 1, tf + 0.5 / SUB, area[1:]) - at)[: n - 1]
+    direct = filtered.reshape(n, SUB)[: n - 1].mean(axis=1)
+    assert np.max(np.abs(target[1:-1] - direct[1:-1])) < 1e-6 * np.max(np.abs(direct))
