@@ -136,7 +136,7 @@ def _daemon_holds(
         if result is not None:
             tests.append((end + int(round(1.5 / dt)), result))
     # The daemon stops the test for good once a window shows a bridge's ripple.
-    bridge = made_by_a_bridge(sig["va"][:win], dt)
+    bridge = made_by_a_bridge(sig["va"][:win], dt, armature=True)
     out = []
     for start in range(0, n - win + 1, hop):
         end = start + win
@@ -146,7 +146,9 @@ def _daemon_holds(
         if bridge or not applies_to(armature_model):
             out.append((False, False, None))
         elif result is None:
-            measured = armature_model == "smooth" and not made_by_a_bridge(sig["va"][s], dt)
+            measured = armature_model == "smooth" and not made_by_a_bridge(
+                sig["va"][s], dt, armature=True
+            )
             out.append((measured and not made_by_a_bridge(sig["vf"][s], dt), measured, None))
         else:
             held = (bool(field_note(result, sig["vf"][s], dt)), not result.linear)

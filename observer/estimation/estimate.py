@@ -107,7 +107,7 @@ def estimate_recording(
         )
         fold = result.correction if result is not None else None
         va = np.asarray(rec["va"], dtype=float)
-        if fold is not None and not made_by_a_bridge(va, rec.dt):
+        if fold is not None and not made_by_a_bridge(va, rec.dt, armature=True):
             # A converter's pulses folded onto zero frequency, periodic in the voltage: taken
             # out of the reading, and the armature estimated again from it (a bridge's jumps
             # are put back between the samples instead, their fold with them).

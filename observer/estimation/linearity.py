@@ -380,13 +380,17 @@ MOTOR_TERMS = 8
 BRIDGE_RIPPLE_HZ = 400.0
 
 
-def made_by_a_bridge(voltage: np.ndarray, dt: float) -> bool:
+def made_by_a_bridge(voltage: np.ndarray, dt: float, *, armature: bool = False) -> bool:
     """Whether ``voltage`` shows a line-commutated bridge's ripple below
     :data:`BRIDGE_RIPPLE_HZ` (:func:`~observer.estimation.intersample.mains_ripple_share` at
     least :data:`~observer.estimation.stages.CONVERTER_RIPPLE`). Measured (the P-12, 1 s
     windows, 2/5/10 kHz, Butterworth or RC voltage filters): bridges 0.99-1.00, choppers
-    0.00-0.05; unfiltered, a chopper's alias on 1 kHz read 0.83-0.99. A chopper's armature
-    beside a field bridge reads 0.33-0.78 (the EMF carries the field current's ripple)."""
+    0.00-0.05; unfiltered, a chopper's alias on 1 kHz read 0.83-0.99. ``armature``: only a
+    6-pulse bridge's lines count (300/360 Hz): a chopper's armature beside a field bridge
+    read 0.33-0.78 on every mains harmonic (the EMF carries the field current's 100 Hz
+    ripple), so the armature's linearity test was never run, and the traction motor behind a
+    chopper sampled in step with its carrier published Ra -32 % and K -29 % as ``ok`` in its
+    first windows, held from then on."""
     from scipy.signal import butter, sosfiltfilt
 
     from observer.estimation.intersample import mains_ripple_share
@@ -398,7 +402,7 @@ def made_by_a_bridge(voltage: np.ndarray, dt: float) -> bool:
     nyquist = 0.5 / dt
     if BRIDGE_RIPPLE_HZ < 0.9 * nyquist:
         v = sosfiltfilt(butter(4, BRIDGE_RIPPLE_HZ / nyquist, output="sos"), v)
-    return mains_ripple_share(v, dt) >= CONVERTER_RIPPLE
+    return mains_ripple_share(v, dt, six_pulse=armature) >= CONVERTER_RIPPLE
 
 
 class LinearityAccumulator:

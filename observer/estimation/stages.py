@@ -705,7 +705,7 @@ def operating_point_stage(
     """
     from observer.estimation.linearity import made_by_a_bridge
 
-    if made_by_a_bridge(problem.voltage, problem.dt):
+    if made_by_a_bridge(problem.voltage, problem.dt, armature=problem.emf is not None):
         return spec
     seg = problem.segments
     if seg.starts.size == 0:

@@ -281,3 +281,28 @@ def test_a_fold_longer_than_the_voltages_span_is_not_taken_out(period_v, taken_o
     reading = Linearity(curve_v=0.02, share=0.01, largest_v=250.0, seconds=10.0, fold=fold)
     assert reading.linear
     assert (reading.correction is fold) is taken_out
+
+
+def test_a_chopper_armature_beside_a_field_bridge_is_not_taken_for_a_bridge():
+    """The EMF carries the field bridge's 100 Hz ripple onto a chopper's armature voltage: the
+    traction motor's read as a bridge on every mains harmonic, so the armature's linearity
+    test never ran and its first windows, sampled in step with a 2.5 kHz carrier at 5 kHz,
+    published Ra -32 % and K -29 % as ``ok``. Its own lines are a 6-pulse bridge's."""
+    from observer.estimation.linearity import made_by_a_bridge
+    from observer.estimation.motor import MOTORS
+    from observer.simulation.converter import PRESETS
+    from observer.simulation.simulate import simulate
+
+    realistic = PRESETS["realistic"]
+    assert realistic is not None
+    chopper = realistic.replace(
+        converter=dataclasses.replace(realistic.converter, armature="chopper", switching_hz=2500.0)
+    )
+    for drive, bridge in ((chopper, False), (realistic, True)):
+        rec = simulate(
+            MOTORS["traction-60v"], duration_s=3.0, sample_rate_hz=5000.0, seed=31, drive=drive,
+            drive_name="realistic",
+        )  # fmt: skip
+        va = np.asarray(rec["va"][5000:10000], dtype=np.float64)
+        assert made_by_a_bridge(va, rec.dt, armature=True) is bridge
+        assert made_by_a_bridge(va, rec.dt)  # every mains harmonic: both read as bridges
