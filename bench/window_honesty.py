@@ -173,8 +173,11 @@ def run_case(
     from observer.simulation.converter_drive import simulate_converter
 
     motor = MOTORS[case.motor]
-    from observer.estimation.estimate import with_field_fold, with_learned_mismatch
-    from observer.estimation.filter_id import IDENTIFIED_WINDINGS, identify_voltage_filter
+    from observer.estimation.estimate import (
+        untold_filter,
+        with_field_fold,
+        with_learned_mismatch,
+    )
     from observer.estimation.frontend import winding_front_ends
 
     drive = _drive(case.drive, case.rate)
@@ -191,18 +194,9 @@ def run_case(
     # Untold: the voltages' filters identified from the converter's jumps, as `dcobserver
     # estimate` does from the whole recording (the daemon from a window once the chain is
     # decided); ``--no-filter-id``: the weakest filter in use assumed, as before.
-    fits = {
-        w: identify_voltage_filter(sig[v], dt)
-        if fe[w] is None and identify and w in IDENTIFIED_WINDINGS
-        else None
-        for w, v in (("field", "vf"), ("armature", "va"))
-    }
-    # The identified filter's aliasing factor, and the filter itself (its jumps put back).
     told = {
-        w: {"voltage_alias": fit.alias, "identified_filter": fit.best if fit.alias else None}
-        if fit is not None
-        else {}
-        for w, fit in fits.items()
+        w: untold_filter(rec, w, {"front_ends": fe[w]})[1] if identify else {}
+        for w in ("field", "armature")
     }
     kw = dict(n_particles=40, max_iterations=40, rng=0)
     whole_f = estimate_field(

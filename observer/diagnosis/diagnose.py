@@ -94,7 +94,7 @@ from observer.diagnosis.results import (
 )
 from observer.estimation import CircuitEstimate, estimate_armature, estimate_field
 from observer.estimation.armature import aliased_bands, armature_problem
-from observer.estimation.estimate import voltage_filter
+from observer.estimation.estimate import untold_filter, voltage_filter
 from observer.estimation.field import DEALIASED as FIELD_DEALIASED
 from observer.estimation.filter_id import FilterFit
 from observer.estimation.frontend import winding_front_ends
@@ -291,16 +291,9 @@ def fit_baseline(
     # jumps, locked to the samples, err the field's voltage by an offset that follows the
     # firing angle, and the traction motor behind RC voltage filters at 5 kHz came back
     # ``unexplained``, its field residual following the field current at z = 46.
-    field_filter = None
-    identified = None
-    if chain_kw["field"]["front_ends"] is None and chain_kw["field"]["intersample"] in (
-        "auto",
-        "smooth",
-    ):
-        field_filter = voltage_filter(rec, "field")
-        chain_kw["field"]["voltage_alias"] = field_filter.alias
-        if field_filter.alias is not None:
-            identified = chain_kw["field"]["identified_filter"] = field_filter.best
+    field_filter, field_options = untold_filter(rec, "field", chain_kw["field"])
+    chain_kw["field"] |= field_options
+    identified = field_options.get("identified_filter")
     field_est = estimate_field(
         rec["vf"], rec["if"], dt, n_particles=n_particles, max_iterations=iterations, rng=rng,
         **chain_kw["field"],

@@ -134,16 +134,8 @@ def _estimate_circuit(
         "intersample": chain.intersample if chain is not None else "auto",
         "front_ends": winding_front_ends(chain, circuit),
     }
-    fit = None
-    if (
-        circuit in IDENTIFIED_WINDINGS
-        and chain_kw["front_ends"] is None
-        and chain_kw["intersample"] in ("auto", "smooth")
-    ):
-        fit = voltage_filter(rec, circuit, prefix)
-        chain_kw["voltage_alias"] = fit.alias
-        if fit.alias is not None:
-            chain_kw["identified_filter"] = fit.best
+    fit, identified = untold_filter(rec, circuit, chain_kw, prefix)
+    chain_kw |= identified
     try:
         first = _estimate(circuit, rec, rng, cfg, common, chain_kw)
         est = with_learned_mismatch(
@@ -159,6 +151,28 @@ def _estimate_circuit(
     if fit is not None and est.intersample == "smooth":
         est = dataclasses.replace(est, voltage_filter={**fit.to_dict(), "text": fit.text})
     return est
+
+
+def untold_filter(
+    rec: Any, circuit: str, chain_kw: dict[str, Any], prefix: str = ""
+) -> tuple[FilterFit | None, dict[str, Any]]:
+    """Where ``circuit``'s chain options ``chain_kw`` leave its front ends untold and its
+    voltage may be read as measured (``auto`` or ``smooth``): the voltage filter identified
+    from the recording (:func:`voltage_filter`), and the estimator's options for it, its
+    aliasing factor and (identified) the filter, whose jumps are then put back between the
+    samples. Else ``(None, {})``. ``estimate``, ``diagnose`` and the benches all read an untold
+    chain this way."""
+    if (
+        circuit not in IDENTIFIED_WINDINGS
+        or chain_kw.get("front_ends") is not None
+        or chain_kw.get("intersample", "auto") not in ("auto", "smooth")
+    ):
+        return None, {}
+    fit = voltage_filter(rec, circuit, prefix)
+    options: dict[str, Any] = {"voltage_alias": fit.alias}
+    if fit.alias is not None:
+        options["identified_filter"] = fit.best
+    return fit, options
 
 
 def voltage_filter(rec: Any, circuit: str, prefix: str = "") -> FilterFit:
