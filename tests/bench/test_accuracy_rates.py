@@ -51,6 +51,7 @@ def test_the_table_has_a_row_per_rate_drive_and_parameter():
     assert len(table(rows[:1] + other).splitlines()) == 2 + 2 * len(PARAMETERS)
 
 
+@pytest.mark.slow
 def test_a_carrier_reaches_the_simulated_chopper():
     """A case's carrier is the simulated chopper's (read back from the recording)."""
     from bench.accuracy_rates import carrier_of, run_case

@@ -36,6 +36,7 @@ def _table_rows(text: str) -> dict[str, list[str]]:
     return rows
 
 
+@pytest.mark.slow
 def test_paper_table_quick_writes_table_and_png(tmp_path, capsys):
     table, figure = tmp_path / "out" / "paper_table.md", tmp_path / "out" / "convergence.png"
     code = paper_table.main(
@@ -63,6 +64,7 @@ def test_paper_table_quick_writes_table_and_png(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_bench_pso_quick_writes_report(tmp_path, capsys):
     out = tmp_path / "benchmarks.md"
     code = bench_pso.main(["--quick", "--no-progress", "--skip-pyswarms", "--output", str(out)])
@@ -140,6 +142,7 @@ def test_scripts_have_help_and_reject_bad_arguments(script, option):
     assert "Traceback" not in bad.stderr
 
 
+@pytest.mark.slow
 def test_kernel_speed_quick_reports_full_width_loops(tmp_path, capsys):
     """The fast kernel's inner loops hold one packed (ymm) FMA per FMA of a block, none scalar."""
     from bench import kernel_speed
@@ -167,6 +170,7 @@ def test_kernel_speed_quick_reports_full_width_loops(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_window_work_quick_accounts_every_stage(tmp_path, capsys):
     """The work ledger sees both circuits' swarms and polishes, and the replay speed."""
     from bench import window_work
@@ -187,6 +191,7 @@ def test_window_work_quick_accounts_every_stage(tmp_path, capsys):
     assert "wrote" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_multi_motor_runs_one_daemon_process_and_reports_it(tmp_path):
     from bench import multi_motor
 

@@ -42,6 +42,7 @@ def test_steps_and_false_alarm_summaries():
     assert line.startswith("0 events (false alarms) in 1.00 h") and "0.0 per hour" in line
 
 
+@pytest.mark.slow
 def test_false_alarms_run_on_the_realistic_drive():
     runs = tracker_bench.false_alarms(3.0 / 3600.0, 3.0, 1, preset="realistic", rate_hz=5000.0)
     assert [r["preset"] for r in runs] == ["realistic"] and runs[0]["windows"] > 0

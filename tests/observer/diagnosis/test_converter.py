@@ -127,6 +127,7 @@ def test_a_bridge_s_jumps_locked_to_the_samples_are_found(rate_hz, locked):
         assert "300 Hz" in found.description and "3, 6 or 9 kHz" in found.advice
 
 
+@pytest.mark.slow
 def test_a_healthy_motor_sampled_in_step_with_its_bridge_is_none_with_the_chain_s_reason():
     """The 440 V motor at 3 kHz: the plain model leaves 0.34 A of ia residual (0.07 A at
     5 kHz), and before, diagnose said only that nothing earned its parameters."""
@@ -172,6 +173,7 @@ def test_an_untold_front_end_that_could_move_an_inductance_is_a_chain_finding():
     assert front_end_finding("va", "ia", 0.0001, 0.02, "La") is None  # 0.5 %: no matter
 
 
+@pytest.mark.slow
 def test_a_healthy_motor_behind_the_thyristor_converter_is_none():
     # 10 s at 2 kHz: the ia residual follows the ripple amplitude (the converter's content
     # folded by sampling), z ~ 10: before the chain test this was `unexplained`.
@@ -187,6 +189,7 @@ def test_a_healthy_motor_behind_the_thyristor_converter_is_none():
     assert all(c.advice for c in diag.chain)
 
 
+@pytest.mark.slow
 def test_a_small_effect_fitted_to_folded_converter_content_is_not_a_finding():
     """At 10 kHz behind the filter at fs/4, at high speed the samples' mean of the bridge's
     voltage drifts by ~0.1 V as the firing angle moves (its jumps' alias): an ia residual of
@@ -203,6 +206,7 @@ def test_a_small_effect_fitted_to_folded_converter_content_is_not_a_finding():
     assert "sensor_offset would earn its parameters" in diag.description
 
 
+@pytest.mark.slow
 def test_an_effect_that_fits_the_voltage_across_its_jumps_is_not_a_finding():
     """At 2 kHz the bridge's voltage jumps between samples in ~28 % of the intervals and is
     reconstructed as smooth across them; on this healthy P-12 a field saturation fitted that
@@ -215,6 +219,7 @@ def test_an_effect_that_fits_the_voltage_across_its_jumps_is_not_a_finding():
     assert any(c.kind == "jumps_between_samples" and c.channel == "va" for c in diag.chain)
 
 
+@pytest.mark.slow
 def test_a_real_effect_paired_with_one_the_jumps_contradict_is_named_alone():
     """The same duty cycle with a 0.3 % armature reaction: the pair with the field saturation
     this recording's jumps give was the verdict. The saturation is contradicted between the
@@ -224,6 +229,7 @@ def test_a_real_effect_paired_with_one_the_jumps_contradict_is_named_alone():
     assert "field_saturation would earn its parameters" in diag.description
 
 
+@pytest.mark.slow
 def test_a_brush_drop_on_top_of_the_converter_is_still_named():
     diag = diagnose(_recording({"brush_drop": 1.0}))
     assert diag.verdict == "brush_drop", diag.description
@@ -231,6 +237,7 @@ def test_a_brush_drop_on_top_of_the_converter_is_still_named():
     assert diag.best.params["brush_drop_v"] == pytest.approx(1.0, rel=0.2)
 
 
+@pytest.mark.slow
 def test_a_missing_anti_aliasing_filter_is_a_chain_finding_not_a_motor_effect():
     diag = diagnose(_recording(drive=NO_FILTER))
     kinds = {c.kind for c in diag.chain}
@@ -243,6 +250,7 @@ def test_a_missing_anti_aliasing_filter_is_a_chain_finding_not_a_motor_effect():
 
 
 @pytest.mark.parametrize("rate_hz", [2000.0, 5000.0])
+@pytest.mark.slow
 def test_an_unfiltered_voltage_beside_a_filtered_current_is_a_chain_finding(rate_hz):
     """At 2 kHz the current's filter lags it by 0.87 samples behind the bare field voltage:
     refitted without that delay, the field's short segments read Rf -24 % and its residual
@@ -266,6 +274,7 @@ def test_an_unfiltered_voltage_beside_a_filtered_current_is_a_chain_finding(rate
     assert "ia" in finding.description and "anti-aliasing filter" in finding.advice
 
 
+@pytest.mark.slow
 def test_a_load_dependent_speed_error_is_unexplained_not_armature_reaction():
     # The recorded speed falls with the load: to the electrical model exactly a flux that
     # rises with the current, which armature reaction (demagnetising) must not take.
@@ -274,6 +283,7 @@ def test_a_load_dependent_speed_error_is_unexplained_not_armature_reaction():
     assert "speed" in diag.description or "noise floor" in diag.description
 
 
+@pytest.mark.slow
 def test_a_back_emf_ripple_in_shaft_angle_is_unexplained_and_described():
     diag = diagnose(_recording({"emf_ripple": 0.02}))
     assert diag.verdict == UNEXPLAINED, diag.description
@@ -288,6 +298,7 @@ def test_a_configured_chain_reaches_the_baseline():
     assert np.isfinite(diag.baseline_rms["armature"])
 
 
+@pytest.mark.slow
 def test_a_chopper_sampled_bare_is_a_chain_finding_on_both_windings():
     """The 4-quadrant chopper (2 kHz carrier) and its field chopper sampled at 5 kHz without
     filters: the samples sit at the converters' levels. The chain says so, with what to do."""
@@ -305,6 +316,7 @@ def test_a_chopper_sampled_bare_is_a_chain_finding_on_both_windings():
     assert diag.verdict in {NONE, UNEXPLAINED}, diag.verdict
 
 
+@pytest.mark.slow
 def test_a_healthy_motor_behind_a_chopper_at_5_khz_is_none_its_aliased_pulses_a_chain_finding():
     """The chopper's pulses (4 kHz) sampled at 5 kHz land at 1 kHz in va and ia: kept, the
     diagnosis read them as a motor effect (`unexplained`, `sampling_skew` earning +28 % on
@@ -321,6 +333,7 @@ def test_a_healthy_motor_behind_a_chopper_at_5_khz_is_none_its_aliased_pulses_a_
     assert "pulses_aliased" not in _healthy_bridge_chain()
 
 
+@pytest.mark.slow
 def test_a_chopper_sampled_in_step_with_its_pulses_is_a_chain_finding_not_a_motor_effect():
     """The chopper's 4 kHz pulses sampled at 4 kHz: every sample meets the filter's ripple
     at one phase, and va reads as a curve of the voltage. The diagnosis put the ia residual,
@@ -344,6 +357,7 @@ def test_a_chopper_sampled_in_step_with_its_pulses_is_a_chain_finding_not_a_moto
     assert "voltage_folded" not in _healthy_bridge_chain()
 
 
+@pytest.mark.slow
 def test_a_healthy_motor_behind_a_chopper_at_10_khz_is_none_its_folded_pulses_taken_out():
     """At 10 kHz the chopper's 4 kHz pulses fold through their 5th harmonic (2 fs) onto va as
     a curve periodic in the voltage; its slope at the reversals, a gain error of 2-3 %, read as
@@ -363,6 +377,7 @@ def test_a_healthy_motor_behind_a_chopper_at_10_khz_is_none_its_folded_pulses_ta
     assert "pulses_folded" not in _healthy_bridge_chain()
 
 
+@pytest.mark.slow
 def test_a_brush_drop_behind_a_chopper_at_10_khz_is_named():
     """1 V of brush drop on the P-12 behind the chopper at 10 kHz. It was ``unexplained`` (a
     residual periodic in shaft angle): the pulses' line read as a missing filter, whose
@@ -374,6 +389,7 @@ def test_a_brush_drop_behind_a_chopper_at_10_khz_is_named():
     assert not any(f.kind == "no_anti_aliasing" for f in diag.chain)
 
 
+@pytest.mark.slow
 def test_a_back_emf_ripple_behind_a_chopper_at_10_khz_is_unexplained_not_none():
     """An effect outside the library behind the chopper: it came back ``none``, under a floor
     that was the field chopper's ripple and a 31 V "alias" bound; now ``unexplained``, with
@@ -384,6 +400,7 @@ def test_a_back_emf_ripple_behind_a_chopper_at_10_khz_is_unexplained_not_none():
     assert "8x shaft speed" in diag.description
 
 
+@pytest.mark.slow
 def test_a_field_chopper_s_offsets_per_level_are_the_chain_s_not_a_sensor_offset():
     """The 440 V motor behind choppers at 10 kHz, healthy: the field chopper's pulses fold onto
     vf as onto va, one offset per steady level, which a current-sensor offset imitates in part
@@ -397,6 +414,7 @@ def test_a_field_chopper_s_offsets_per_level_are_the_chain_s_not_a_sensor_offset
     assert folded == {"va", "vf"}, [(f.channel, f.kind) for f in diag.chain]
 
 
+@pytest.mark.slow
 def test_a_current_sensor_offset_behind_a_chopper_at_5_khz_is_not_taken_for_the_fold():
     """At 5 kHz the pulses' fold is fitted but too weak to take out; its peak (0.099 V on va)
     exceeds what a 0.03 A offset on ia changes (0.077 V), and was read as the chain's. The
@@ -407,6 +425,7 @@ def test_a_current_sensor_offset_behind_a_chopper_at_5_khz_is_not_taken_for_the_
     assert diag.verdict == "sensor_offset", diag.description
 
 
+@pytest.mark.slow
 def test_eddy_currents_are_not_named_where_the_channels_read_skewed():
     """Voltages through a 4th-order filter at fs/3 beside 2nd-order currents at fs/4, at 10 kHz:
     the channels read skewed, and their filters' difference leaves the second, faster time
@@ -436,6 +455,7 @@ def _averaged(rate_hz: float, *, effects=None, motor=P12):
 
 
 @pytest.mark.parametrize(("motor", "rate_hz"), [("p12", 5000.0), ("industrial-440v", 2000.0)])
+@pytest.mark.slow
 def test_untold_averaged_voltages_are_a_chain_finding_and_the_healthy_motor_none(motor, rate_hz):
     """Read half a period behind the currents, the averaged voltages were fitted with that
     delay, taken for the winding's physics and refitted without it: held a full period off,
@@ -450,11 +470,13 @@ def test_untold_averaged_voltages_are_a_chain_finding_and_the_healthy_motor_none
     assert diag.intersample["armature"]["model"] == "averaged"
 
 
+@pytest.mark.slow
 def test_a_brush_drop_behind_averaged_voltages_is_still_named():
     diag = diagnose(_averaged(5000.0, effects={"brush_drop": 1.0}))
     assert diag.verdict == "brush_drop", diag.description
 
 
+@pytest.mark.slow
 def test_a_current_read_behind_its_voltage_is_the_chain_s_and_the_healthy_motor_none():
     """An RC on the voltages beside 2nd-order Butterworths on the currents, untold, at 5 kHz:
     the currents read 0.3 periods behind. The baseline took that for the winding's physics
@@ -474,6 +496,7 @@ def test_a_current_read_behind_its_voltage_is_the_chain_s_and_the_healthy_motor_
     assert ("vf", "channel_skew") in {(f.channel, f.kind) for f in diag.chain}
 
 
+@pytest.mark.slow
 def test_the_field_s_jumps_are_put_back_before_its_residual_is_judged():
     """The traction motor behind a 2.5 kHz chopper sampled at 5 kHz (its pulses folded, taken
     for the chain's), the field's single-phase bridge seen through an RC at fs/4, untold. The

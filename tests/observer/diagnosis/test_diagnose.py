@@ -78,6 +78,7 @@ def _true_magnitude(rec: Recording, name: str, diag) -> float:
 
 
 @pytest.mark.parametrize("effect", sorted(CONCEALED))
+@pytest.mark.slow
 def test_concealed_effect_is_named_measured_and_corrected(effect):
     magnitude, seed, param, tol = CONCEALED[effect]
     rec, diag = _diagnosed(P12, {effect: magnitude}, seed)
@@ -128,6 +129,7 @@ def test_concealed_effect_is_named_measured_and_corrected(effect):
 @pytest.mark.parametrize(
     ("motor", "seed"), [(P12, 11), (P12, 12), (TRACTION_60V, 11), (TRACTION_60V, 12)]
 )
+@pytest.mark.slow
 def test_clean_recordings_come_back_none(motor, seed):
     rec, diag = _diagnosed(motor, None, seed)
     assert diag.verdict == NONE, [(f.effect, f.evidence) for f in diag.findings[:2]]
@@ -137,6 +139,7 @@ def test_clean_recordings_come_back_none(motor, seed):
         assert 0.85 < fl.excess_ratio < 1.15
 
 
+@pytest.mark.slow
 def test_a_periodic_disturbance_is_located_but_unexplained():
     rec = simulate(P12, duration_s=DURATION_S, sample_rate_hz=RATE_HZ, seed=5)
     angle = np.cumsum(rec["omega"]) * rec.dt
@@ -220,6 +223,7 @@ def test_library_terms_declare_themselves_and_compose():
         assert p.low <= p.neutral <= p.high and p.unit
 
 
+@pytest.mark.slow
 def test_two_effects_at_once_are_named_as_a_pair():
     rec, diag = _diagnosed(P12, {"brush_drop": 0.3, "thermal_drift": 0.06}, 1)
     assert diag.verdict == "brush_drop+thermal_drift"

@@ -56,6 +56,7 @@ def brush_run(tmp_path_factory):
     return d, res
 
 
+@pytest.mark.slow
 def test_simulate_effect_writes_its_truth_into_the_metadata(brush_run):
     d, _ = brush_run
     rec = read_recording(d / "brush.csv")

@@ -119,6 +119,7 @@ def test_no_filter_and_averaging_channels_are_left_alone() -> None:
     assert dealias.reconstruction(x, 1 / FS, starts, averaging, None) is None
 
 
+@pytest.mark.slow
 def test_an_untold_rc_on_the_field_voltage_no_longer_costs_the_inductance(monkeypatch):
     """8 s of a P-12 behind the thyristor drive at 2 kHz, an RC at fs/4 on the voltages and a
     Butterworth on the currents, nothing configured (``estimate``'s path: the filter is

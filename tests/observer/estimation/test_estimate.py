@@ -171,6 +171,7 @@ def test_swarm_on_a_flat_wall_restarts_and_noise_fit_needs_a_time_constant():
     assert input_noise_variance(resid, a=1e-9, b=0.2) == 0.0
 
 
+@pytest.mark.slow
 def test_sensor_noise_is_not_taken_for_a_mismatch_of_the_channels():
     """At 2 % sensor noise the voltage's noise reads as the commonest mismatch of untold
     channels (here filtered alike); corrected for, La went 6 % high at 2 kHz. Extrapolated to

@@ -64,6 +64,7 @@ def true_alias(kind: str, cutoff_per_fs: float, fs: float) -> float:
         ("bessel3", 0.25, 3000.0),
     ],
 )
+@pytest.mark.slow
 def test_the_filter_is_identified_and_its_alias_is_not_understated(kind, cutoff, fs):
     v = recording(kind, cutoff, fs)
     fit = identify_voltage_filter(v, 1.0 / fs)
@@ -95,6 +96,7 @@ def test_a_voltage_without_jumps_is_not_identified():
     assert "jumps" in fit.reason
 
 
+@pytest.mark.slow
 def test_a_voltage_the_model_does_not_describe_is_not_identified():
     """Jumps between pieces that are neither a mains sine nor constant (here: random cubics;
     over a few samples a sine, a constant and the jumps' responses span a quadratic) leave a

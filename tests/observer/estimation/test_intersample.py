@@ -208,6 +208,7 @@ def test_the_untold_alias_factor_is_that_of_an_rc_at_a_quarter_of_the_rate():
 
 @pytest.mark.parametrize("alpha_deg", [35.0, 50.0, 65.0, 80.0])
 @pytest.mark.parametrize("filt", ["rc1@500", "butter2@500"])  # fs/4
+@pytest.mark.slow
 def test_the_alias_std_describes_the_sample_mean_error_of_a_locked_bridge(alpha_deg, filt):
     """A steady field bridge on 50 Hz sampled at 2 kHz (40 samples per mains period: every
     firing at the same place between samples) errs the sample mean alike in every period.
@@ -367,6 +368,7 @@ def test_a_current_filtered_apart_from_its_voltage_is_given_time_to_settle(filte
         assert m == 0
 
 
+@pytest.mark.slow
 def test_a_filtered_drive_voltage_reads_smooth_in_every_window():
     """The realistic drive's armature voltage (a 6-pulse bridge behind a 2nd-order filter at
     fs/4) at 2 kHz: the mains sine, which fits no filtered segment, must not read the
@@ -526,6 +528,7 @@ def test_restrict_keeps_the_runs_of_valid_samples_of_each_segment_at_least_min_l
         assert list(zip(got.starts.tolist(), got.ends.tolist(), strict=True)) == want
 
 
+@pytest.mark.slow
 def test_a_filter_overshoot_clipped_once_a_pulse_is_found_at_the_rail():
     # A field bridge in inversion jumps to near its supply's peak; a 4th-order Butterworth
     # overshoots by 11 % and the ADC clips that one sample a pulse. Not held for consecutive

@@ -46,6 +46,7 @@ def _ra_z(window, monkeypatch=None):
     return est.resistance_ohm, (est.resistance_ohm - truth) / est.std["R"]
 
 
+@pytest.mark.slow
 def test_held_speed_windows_carry_the_jumps_alias_in_their_std(held_windows, monkeypatch):
     with_stage = [_ra_z(w) for w in held_windows]
     monkeypatch.setattr(armature, "jump_stage", lambda problem, fit: None)

@@ -40,6 +40,7 @@ def _linearity(rec):
 
 
 @pytest.mark.parametrize("fs", [2000.0, 4000.0, 8000.0])
+@pytest.mark.slow
 def test_a_chopper_sampled_in_step_with_its_pulses_reads_a_curve(fs):
     """The chopper's pulses at 4 kHz: a harmonic on a multiple of fs at 2, 4 and 8 kHz."""
     result = _linearity(_recording("chopper", fs))
@@ -58,6 +59,7 @@ def test_a_chopper_sampled_in_step_with_its_pulses_reads_a_curve(fs):
         ("chopper", 5000.0, "field_saturation"),
     ],
 )
+@pytest.mark.slow
 def test_a_linear_reading_is_not_taken_for_a_curve(drive, fs, effect):
     result = _linearity(_recording(drive, fs, effect))
     assert result is not None and result.linear
@@ -83,6 +85,7 @@ def test_chunks_give_what_the_whole_gives_and_short_data_gives_nothing():
     assert voltage_linearity(np.zeros(n * 2), np.zeros(n * 2), rec.dt) is None
 
 
+@pytest.mark.slow
 def test_the_whole_recording_estimate_holds_a_reading_that_follows_a_curve():
     """At 4 kHz the fold's gain moved K by more than 1 %, at a std that called it exact:
     the estimate now says its model does not describe the armature, nor the field chopper
@@ -155,6 +158,7 @@ def _chopper_at_10_khz(drive: str = "chopper"):
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_pulses_folded_at_10_khz_are_a_curve_periodic_in_the_voltage_and_taken_out():
     """The pulses' 5th harmonic (20 kHz = 2 fs) meets every sample at one phase: the reading
     is off by a periodic function of the duty, so of the voltage. Too small to hold the

@@ -86,6 +86,7 @@ def _armature_without_and_with_notch(drive: str, duration_s: float, seed: int):
 
 
 @pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.slow
 def test_the_chopper_at_5_khz_no_longer_reads_its_aliased_pulses_as_inductance(seed):
     """The P-12 behind a chopper (pulses at 4 kHz), 2nd-order filters at fs/4, sampled at
     5 kHz: the pulses' line at 1 kHz took La 16 % high over every recording; without it La

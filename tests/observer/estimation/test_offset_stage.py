@@ -46,6 +46,7 @@ def _ra(window, offset_v: float = 0.0):
     return est.resistance_ohm, est.std["R"]
 
 
+@pytest.mark.slow
 def test_a_window_that_tells_the_offset_apart_carries_less_than_the_prior(
     moving_window, monkeypatch
 ):

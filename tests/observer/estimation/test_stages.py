@@ -427,6 +427,7 @@ def test_an_untold_front_end_mismatch_is_in_the_inductances_std():
     assert abs(error) > 3 * std, results
 
 
+@pytest.mark.slow
 def test_a_whole_recording_learns_the_untold_mismatch_and_corrects_for_it():
     """`dcobserver estimate` on the same drive, untold: the recording measures the channels'
     mismatch (about the commonest pair's size) with the delay that goes with it, and the
@@ -469,6 +470,7 @@ def test_an_unfiltered_voltage_beside_a_filtered_current_settles_before_its_segm
     assert abs(error) <= 0.02 * MOTORS["p12"].armature_inductance_h, (error, arm.std)
 
 
+@pytest.mark.slow
 def test_a_switched_segment_loses_its_first_sample_only_to_a_delay_the_fit_found():
     """Beside a filtered current (0.9 samples behind the bare voltage) the fit finds the
     delay and is redone with the first sample of every segment left out; with both
@@ -576,6 +578,7 @@ def _field_window(mains_hz):
     return est, est.resistance_ohm / MOTORS["p12"].field_resistance_ohm - 1.0
 
 
+@pytest.mark.slow
 def test_the_alias_of_jumps_locked_to_the_samples_is_reported_as_shared(monkeypatch):
     """A single-phase field bridge on 50 Hz mains at 2 kHz fires every 20 samples, always
     at the same place between them: the samples' mean of vf errs alike in every window

@@ -628,6 +628,7 @@ def test_the_first_window_after_a_held_stretch_counts_whole(seed):
     assert abs(first) < 0.004
 
 
+@pytest.mark.slow
 def test_a_winding_that_does_not_heat_is_not_called_heated():
     """Ten minutes of a resistance that does not move, under a duty cycle's losses. A thermal
     model without a rise predicts a constant as well as the level with a rate (better: it
@@ -672,6 +673,7 @@ def test_windows_far_beyond_the_quality_limit_do_not_size_a_change():
 
 
 @pytest.mark.parametrize("seed", [0, 3])
+@pytest.mark.slow
 def test_the_bends_of_a_fast_heating_are_not_taken_for_steps_once_its_model_leads(seed):
     """Windings heating with a 40 s time constant towards +30 %, their fits precise, no time
     constant configured. The level with a rate expects a rate that wanders by 5 %/min per

@@ -384,6 +384,7 @@ def test_warm_up_compiles_every_kernel_signature_the_observer_runs():
     assert proc.returncode == 0, proc.stderr[-3000:]
 
 
+@pytest.mark.slow
 def test_untold_channels_that_differ_are_learned_and_corrected_for():
     """RC voltage front ends beside 2nd-order Butterworth current ones (fs/4, 5 kHz), the
     chain not told: La reads 2.7 % small, the ripple current being 2.7 % large for its
@@ -413,6 +414,7 @@ def test_untold_channels_that_differ_are_learned_and_corrected_for():
     assert np.all(np.abs(errors) < 2.5 * rel_std)
 
 
+@pytest.mark.slow
 def test_an_untold_voltage_filter_is_identified_and_narrows_the_std(monkeypatch):
     """The realistic chain (2nd-order Butterworth at fs/4, 2 kHz) not told: once the chain is
     decided, the field voltage's filter is identified from the bridge's jumps, and the
@@ -451,6 +453,7 @@ def test_an_untold_voltage_filter_is_identified_and_narrows_the_std(monkeypatch)
     assert np.median(rel_std_rc) > 2.0 * np.median(rel_std)
 
 
+@pytest.mark.slow
 def test_the_filter_is_identified_beside_the_windows_and_used_from_a_fixed_window(monkeypatch):
     """The untold filter's identification (0.5 s of CPU a winding at 10 kHz) runs in a thread:
     the windows after the one it starts from are estimated while it runs (here it is held
@@ -524,6 +527,7 @@ def test_sensor_noise_is_not_learned_as_a_mismatch_of_the_channels(monkeypatch):
     assert fooled.health()["chain"]["armature"]["mismatch"] >= MISMATCH_APPLIED
 
 
+@pytest.mark.slow
 def test_a_voltage_reading_that_follows_a_curve_holds_the_armature():
     """The P-12 behind a chopper whose 4 kHz pulses the 4 kHz ADC samples in step (filters
     at fs/4, not configured): every sample meets the filter's ripple at one phase and reads
@@ -571,6 +575,7 @@ def test_a_voltage_reading_that_follows_a_curve_holds_the_armature():
     assert all(not a["describes_window"] for a in before if a["chain"]["intersample"] == "smooth")
 
 
+@pytest.mark.slow
 def test_an_in_step_chopper_read_as_held_is_still_held_until_tested():
     """The traction motor behind a 2.5 kHz chopper whose pulses the 5 kHz ADC samples in step,
     RC voltage filters beside Butterworth currents (not configured): the first window reads
@@ -607,6 +612,7 @@ def test_an_in_step_chopper_read_as_held_is_still_held_until_tested():
     assert all(a["quality"][p] != "ok" for a in armature for p in ("R", "L", "K"))
 
 
+@pytest.mark.slow
 def test_pulses_folded_onto_the_reading_are_taken_out_of_the_windows(caplog):
     """The 440 V motor behind a chopper sampled at 10 kHz: its pulses' 5th harmonic folds onto
     the reading as a curve periodic in the voltage, too small to hold the armature for. Once
@@ -633,6 +639,7 @@ def test_pulses_folded_onto_the_reading_are_taken_out_of_the_windows(caplog):
 
 
 @pytest.mark.parametrize("drive", ["thyristor", "chopper"])
+@pytest.mark.slow
 def test_a_change_of_the_motor_is_not_read_as_a_curve_of_the_voltage(drive):
     """A field fault (K -5 % at 15 s, after the first linearity test), the drive running
     on. Samples from both sides of it under one set of parameters leave an error that

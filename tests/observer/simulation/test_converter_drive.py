@@ -145,6 +145,7 @@ def thyristor_run():
     return rec, truth
 
 
+@pytest.mark.slow
 def test_discontinuous_conduction_at_light_load_shows_the_back_emf(thyristor_run):
     rec, truth = thyristor_run
     blocked = truth.conducting == 0
