@@ -136,7 +136,7 @@ def _daemon_holds(
         if result is not None:
             tests.append((end + int(round(1.5 / dt)), result))
     # The daemon stops the test for good once a window shows a bridge's ripple.
-    bridge = made_by_a_bridge(sig["va"][:win], dt, armature=True)
+    bridge = made_by_a_bridge(sig["va"][:win], dt, winding="armature")
     out = []
     for start in range(0, n - win + 1, hop):
         end = start + win
@@ -147,9 +147,15 @@ def _daemon_holds(
             out.append((False, False, None))
         elif result is None:
             measured = armature_model == "smooth" and not made_by_a_bridge(
-                sig["va"][s], dt, armature=True
+                sig["va"][s], dt, winding="armature"
             )
-            out.append((measured and not made_by_a_bridge(sig["vf"][s], dt), measured, None))
+            out.append(
+                (
+                    measured and not made_by_a_bridge(sig["vf"][s], dt, winding="field"),
+                    measured,
+                    None,
+                )
+            )
         else:
             held = (bool(field_note(result, sig["vf"][s], dt)), not result.linear)
             out.append((*held, result.correction))

@@ -256,7 +256,7 @@ def without_folded_pulses(
     healthy P-12 behind a chopper at 10 kHz came back ``unexplained``. ``linearity``: the test
     of ``rec``'s reading, where it is already known (else it is run)."""
     va = kernel_array(rec["va"])
-    if made_by_a_bridge(va, rec.dt, armature=True):
+    if made_by_a_bridge(va, rec.dt, winding="armature"):
         return rec, None
     result = linearity_of(rec, linearity)()
     fold = result.correction if result is not None else None
@@ -1296,7 +1296,7 @@ def front_end_findings(
             locked_finding(voltage, v, rec.dt, _alias_of(rec, circuit))
             if circuit == "armature"
             and folded is None
-            and made_by_a_bridge(v[: int(round(1.0 / rec.dt))], rec.dt, armature=True)
+            and made_by_a_bridge(v[: int(round(1.0 / rec.dt))], rec.dt, winding="armature")
             else None,
         ):
             if found is not None:

@@ -107,7 +107,7 @@ def estimate_recording(
         )
         fold = result.correction if result is not None else None
         va = np.asarray(rec["va"], dtype=float)
-        if fold is not None and not made_by_a_bridge(va, rec.dt, armature=True):
+        if fold is not None and not made_by_a_bridge(va, rec.dt, winding="armature"):
             # A converter's pulses folded onto zero frequency, periodic in the voltage: taken
             # out of the reading, and the armature estimated again from it (a bridge's jumps
             # are put back between the samples instead, their fold with them).
@@ -286,7 +286,7 @@ def with_field_fold(
     V); the same bound on ``L`` over the step's size held most windows and not those, and
     was left out. Unchanged without a fold, or where the field's voltage shows a bridge's
     ripple (a bridge's jumps are put back between the samples, their fold with them)."""
-    if fold is None or made_by_a_bridge(field_voltage, dt):
+    if fold is None or made_by_a_bridge(field_voltage, dt, winding="field"):
         return est
     v = np.asarray(field_voltage, dtype=float)
     mean_v = float(np.mean(np.abs(v)))

@@ -352,7 +352,7 @@ def field_note(armature: Linearity | None, field_voltage: np.ndarray, dt: float)
     1.6-8.6 % off at 2.5-47 std). A field bridge puts nearly all of its ripple at mains
     harmonics (:func:`made_by_a_bridge`) and is left as it is.
     """
-    if armature is None or armature.linear or made_by_a_bridge(field_voltage, dt):
+    if armature is None or armature.linear or made_by_a_bridge(field_voltage, dt, winding="field"):
         return ""
     return (
         "the armature's voltage samples follow a curve of the voltage (a converter's pulses "
@@ -380,13 +380,14 @@ MOTOR_TERMS = 8
 BRIDGE_RIPPLE_HZ = 400.0
 
 
-def made_by_a_bridge(voltage: np.ndarray, dt: float, *, armature: bool = False) -> bool:
+def made_by_a_bridge(voltage: np.ndarray, dt: float, *, winding: str) -> bool:
     """Whether ``voltage`` shows a line-commutated bridge's ripple below
     :data:`BRIDGE_RIPPLE_HZ` (:func:`~observer.estimation.intersample.mains_ripple_share` at
     least :data:`~observer.estimation.stages.CONVERTER_RIPPLE`). Measured (the P-12, 1 s
     windows, 2/5/10 kHz, Butterworth or RC voltage filters): bridges 0.99-1.00, choppers
-    0.00-0.05; unfiltered, a chopper's alias on 1 kHz read 0.83-0.99. ``armature``: only a
-    6-pulse bridge's lines count (300/360 Hz): a chopper's armature beside a field bridge
+    0.00-0.05; unfiltered, a chopper's alias on 1 kHz read 0.83-0.99. ``winding``, required
+    (``field`` or ``armature``): for the armature only a 6-pulse bridge's lines count
+    (300/360 Hz), for the field every mains harmonic: a chopper's armature beside a field bridge
     read 0.33-0.78 on every mains harmonic (the EMF carries the field current's 100 Hz
     ripple), so the armature's linearity test was never run, and the traction motor behind a
     chopper sampled in step with its carrier published Ra -32 % and K -29 % as ``ok`` in its
@@ -396,13 +397,15 @@ def made_by_a_bridge(voltage: np.ndarray, dt: float, *, armature: bool = False) 
     from observer.estimation.intersample import mains_ripple_share
     from observer.estimation.stages import CONVERTER_RIPPLE
 
+    if winding not in ("field", "armature"):
+        raise ValueError(f"winding must be 'field' or 'armature', not {winding!r}")
     v = np.asarray(voltage, dtype=np.float64)
     if v.shape[0] < 64 or not np.all(np.isfinite(v)):
         return False
     nyquist = 0.5 / dt
     if BRIDGE_RIPPLE_HZ < 0.9 * nyquist:
         v = sosfiltfilt(butter(4, BRIDGE_RIPPLE_HZ / nyquist, output="sos"), v)
-    return mains_ripple_share(v, dt, six_pulse=armature) >= CONVERTER_RIPPLE
+    return mains_ripple_share(v, dt, six_pulse=winding == "armature") >= CONVERTER_RIPPLE
 
 
 class LinearityAccumulator:

@@ -705,7 +705,9 @@ def operating_point_stage(
     """
     from observer.estimation.linearity import made_by_a_bridge
 
-    if made_by_a_bridge(problem.voltage, problem.dt, armature=problem.emf is not None):
+    if made_by_a_bridge(
+        problem.voltage, problem.dt, winding="armature" if problem.emf is not None else "field"
+    ):
         return spec
     seg = problem.segments
     if seg.starts.size == 0:

@@ -648,7 +648,7 @@ class SlidingWindowObserver:
         5 % step of K or a tachometer losing 10 % read as a curve of 0.6-0.8 % of the largest
         voltage 5-7 s later, and held the armature's windows for as long as the step stayed in
         the tested stretch."""
-        if not made_by_a_bridge(np.asarray(va, dtype=np.float64), period_s, armature=True):
+        if not made_by_a_bridge(np.asarray(va, dtype=np.float64), period_s, winding="armature"):
             return False
         self._armature_bridge = True
         self._restart_linearity()
@@ -736,7 +736,10 @@ class SlidingWindowObserver:
         bridge made them (:func:`~observer.estimation.linearity.made_by_a_bridge`)."""
         voltages = ("va",) if circuit == "armature" else ("va", "vf")
         if any(
-            made_by_a_bridge(window[name], period_s, armature=name == "va") for name in voltages
+            made_by_a_bridge(
+                window[name], period_s, winding="armature" if name == "va" else "field"
+            )
+            for name in voltages
         ):
             return ""
         return (
@@ -1274,7 +1277,7 @@ def warm_up_kernels() -> float:
     va, ia, vf, i_f, omega = _synthetic_windings(P12, n=200, dt=dt)
     # The bridge check's and the linearity test's scipy.signal: ~0.6 s to import, which the
     # first untested window (or the test's thread, holding the GIL) would otherwise wait for.
-    made_by_a_bridge(va, dt, armature=True)
+    made_by_a_bridge(va, dt, winding="armature")
     # The compensated swarm's call, whatever the fits below reach.
     emf = kernels.emf_input(i_f, omega)
     x = np.log10([[3.5, 0.02]])

@@ -117,9 +117,9 @@ def test_a_field_bridge_beside_a_folded_armature_is_estimated_as_before():
     bridge = _bridge_field_recording()
     aliased = _recording("chopper", 5000.0)
     n = int(1 / aliased.dt)
-    assert made_by_a_bridge(bridge.signals["vf"][:4000], bridge.dt)
-    assert not made_by_a_bridge(aliased.signals["vf"][:n], aliased.dt)
-    assert not made_by_a_bridge(aliased.signals["va"][:n], aliased.dt)
+    assert made_by_a_bridge(bridge.signals["vf"][:4000], bridge.dt, winding="field")
+    assert not made_by_a_bridge(aliased.signals["vf"][:n], aliased.dt, winding="field")
+    assert not made_by_a_bridge(aliased.signals["va"][:n], aliased.dt, winding="armature")
 
     folded = _linearity(_recording("chopper", 4000.0))
     assert not folded.linear
@@ -308,5 +308,7 @@ def test_a_chopper_armature_beside_a_field_bridge_is_not_taken_for_a_bridge():
             drive_name="realistic",
         )  # fmt: skip
         va = np.asarray(rec["va"][5000:10000], dtype=np.float64)
-        assert made_by_a_bridge(va, rec.dt, armature=True) is bridge
-        assert made_by_a_bridge(va, rec.dt)  # every mains harmonic: both read as bridges
+        assert made_by_a_bridge(va, rec.dt, winding="armature") is bridge
+        assert made_by_a_bridge(
+            va, rec.dt, winding="field"
+        )  # every mains harmonic: both read as bridges
