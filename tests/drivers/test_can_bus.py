@@ -203,6 +203,8 @@ def _netns_available() -> bool:
 
 
 @pytest.mark.skipif(not _netns_available(), reason="cannot create a network namespace here")
+@pytest.mark.slow
+@pytest.mark.slow
 def test_cross_process_udp_multicast_inside_a_private_network_namespace(tmp_path):
     """Fake drive and reader in two processes, in a namespace whose only interface is lo."""
     out = tmp_path / "can.csv"

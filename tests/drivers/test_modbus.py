@@ -136,6 +136,8 @@ def test_end_to_end_field_and_resistances_at_a_modbus_poll_rate(fake_modbus):
     assert a.emf_constant_h == pytest.approx(P12.emf_constant_h, rel=0.01)
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_int16_and_little_endian_int32_registers_decode_to_the_simulated_values(fake_modbus):
     _, port = fake_modbus("--port", "0", "--seed", "7")
     regs = [
@@ -183,6 +185,8 @@ def test_timeouts_are_counted_and_the_connection_is_renewed(fake_modbus):
     assert health["samples"] >= before + 50
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_server_disappears_and_comes_back(fake_modbus):
     port = _free_port()
     first, _ = fake_modbus("--port", str(port), "--seed", "1")
@@ -213,6 +217,8 @@ def test_consumer_slower_than_polling_overruns_are_counted(fake_modbus):
     assert health["samples"] + health["overrun_samples"] + buffered == health["received_samples"]
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_rtu_framing_through_a_serial_url(fake_modbus):
     """RTU frames (CRC-16/MODBUS) over pyserial's socket:// URL to an RTU-framing server."""
     _, port = fake_modbus("--port", "0", "--framer", "rtu", "--seed", "3")

@@ -170,6 +170,8 @@ def test_registered_and_built_from_config(tmp_path):
         cls.from_config({"channels": ["volts"], "scale": [1]}, source="x.toml", base_dir=tmp_path)
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_end_to_end_estimates_within_tolerance(fake_serial):
     port = fake_serial("--speedup", "2", "--seed", "5")
     # Read until 5.4 s have arrived without a gap. A stall of this process (numba compiling
@@ -197,6 +199,8 @@ def test_end_to_end_estimates_within_tolerance(fake_serial):
     assert a.emf_constant_h == pytest.approx(P12.emf_constant_h, rel=0.01)
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_garbage_torn_and_corrupted_frames_are_counted_and_the_rest_is_exact(fake_serial):
     port = fake_serial(
         "--seed", "9", "--garbage-every", "7", "--tear-every", "11", "--corrupt-every", "13"
@@ -230,6 +234,8 @@ def test_garbage_torn_and_corrupted_frames_are_counted_and_the_rest_is_exact(fak
     assert health["skipped_bytes"] > 0
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_device_vanishes_and_comes_back(fake_serial, tmp_path):
     port = fake_serial("--seed", "1")
     with _source(port) as src:

@@ -90,6 +90,7 @@ def replay(archive, *args):
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_replay_of_an_archive_on_a_dask_cluster_equals_the_serial_run(archive, cluster):
     serial = replay(archive, "--workers", "1", "--table", "serial.csv")
     remote = replay(archive, "--scheduler", cluster, "--table", "remote.csv")

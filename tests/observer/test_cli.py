@@ -43,6 +43,7 @@ def test_every_command_has_help(tmp_path):
         assert "usage: dcobserver " + name in sub.stdout
 
 
+@pytest.mark.slow
 def test_estimate_json_contract_and_accuracy(p12_csv):
     res = run("estimate", str(p12_csv), "--json", cwd=p12_csv.parent)
     assert res.returncode == 0, res.stderr
@@ -70,6 +71,7 @@ def test_estimate_json_contract_and_accuracy(p12_csv):
     assert "operating_point_std" not in out["armature"]
 
 
+@pytest.mark.slow
 def test_estimate_says_when_the_halves_of_a_recording_disagree(tmp_path):
     """The 440 V motor behind a chopper at 2.5 kHz sampled at 2 kHz (its pulses' harmonics
     fold through the filters): the fits over the low- and high-voltage halves differ beyond
@@ -97,6 +99,7 @@ def test_estimate_says_when_the_halves_of_a_recording_disagree(tmp_path):
     assert data["armature"]["operating_point_std"]["K"] > 0
 
 
+@pytest.mark.slow
 def test_estimate_table_shows_truth_from_metadata(tmp_path):
     rec = tmp_path / "field.mcap"
     assert (
@@ -156,6 +159,7 @@ def test_config_narrows_the_search(tmp_path, p12_csv):
     assert out["field"]["search_range"] == {"R": [150.0, 250.0], "L": [20.0, 80.0]}
 
 
+@pytest.mark.slow
 def test_same_seed_same_numbers_across_processes(p12_csv):
     a = run(
         "estimate", str(p12_csv), "--json", "--seed", "7", "--circuit", "field", cwd=p12_csv.parent

@@ -327,6 +327,7 @@ def test_every_json_says_its_units(p12, tmp_path):
     assert re.search(r"kPhi \d[\d.]* V\*s/rad$", line), line
 
 
+@pytest.mark.slow
 def test_replay_trend_report_renders_and_png_is_written(tmp_path):
     mcap = ROOT / "tests" / "replay" / "data" / "p12_3s_1khz.mcap"
     html_path, png_path = tmp_path / "trend.html", tmp_path / "trend.png"

@@ -153,6 +153,7 @@ def test_one_chain_description_for_simulate_and_estimate(tmp_path, capsys):
     assert '"field"' in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_estimate_says_which_voltage_filter_the_jumps_showed(tmp_path, capsys):
     """Front ends not told: `estimate` identifies the voltage filter from the converter's jumps,
     and says so (its JSON carries it per circuit; the text names it)."""

@@ -114,6 +114,7 @@ def test_the_sandbox_denies_what_the_unit_denies(children):
 
 
 @needs_seccomp
+@pytest.mark.slow
 def test_the_daemon_runs_its_serial_adapter_and_zenoh_under_the_units_filter(tmp_path, children):
     """The unit's SystemCallFilter= and RestrictAddressFamilies= emulated with libseccomp:
     a serial fake drive on a pty in, Zenoh out to a subscriber listening on all addresses,

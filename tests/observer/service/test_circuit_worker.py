@@ -78,6 +78,8 @@ def _alive(pid: int) -> bool:
         return f.read().split(") ", 1)[1][0] != "Z"
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_the_armature_in_a_second_process_gives_the_very_numbers_of_one_process(
     converter_recording,
 ):
@@ -93,6 +95,8 @@ def test_the_armature_in_a_second_process_gives_the_very_numbers_of_one_process(
     assert len(set(pids)) == 1 and not _alive(pids[0])  # closed with the observer
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_a_worker_that_dies_leaves_this_process_to_estimate_without_a_changed_number(
     converter_recording, caplog
 ):

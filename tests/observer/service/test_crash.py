@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from bench.crash_loss import kill_and_restart, make_recording
 from observer.recording import read_recording
 from replay.source import iter_mcap_blocks
 
 
+@pytest.mark.slow
 def test_sigkill_five_times_each_cut_log_recovered_automatically_at_most_1_s_lost(tmp_path):
     recording = make_recording(tmp_path)
     original = read_recording(recording)

@@ -97,6 +97,7 @@ def _strip(e):
     return {k: v for k, v in e.items() if k not in ("elapsed_ms", "drive_id", "units")}
 
 
+@pytest.mark.slow
 def test_done_when_subscriber_tracks_ra_rise_and_log_is_readable(
     tmp_path, children, ra_rise_recording
 ):

@@ -16,6 +16,7 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 import zenoh
 
 from observer.config import ZenohConfig
@@ -62,6 +63,7 @@ def test_the_publisher_leaves_no_thread_inside_zenoh_when_closed():
     assert set(threading.enumerate()) <= before
 
 
+@pytest.mark.slow
 def test_ctrl_c_after_the_first_estimate_exits_with_status_0(tmp_path: Path, children):
     """The README's demo, stopped by SIGINT once it has published, while a client keeps
     querying ``latest``: exit status 0, no abort, the log finished. Several times."""
