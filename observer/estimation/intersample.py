@@ -601,7 +601,7 @@ RIPPLE_FLOOR_HZ = 20.0
 RIPPLE_CEILING_HZ = 2000.0
 
 
-def mains_ripple_share(v: np.ndarray, dt: float, *, six_pulse: bool = False) -> float:
+def mains_ripple_share(v: np.ndarray, dt: float, *, harmonic_step: int = 1) -> float:
     """Excess share of a voltage's fluctuation power at mains harmonics (the larger of 50/60 Hz).
 
     A thyristor bridge's terminal voltage repeats every firing: its
@@ -612,8 +612,9 @@ def mains_ripple_share(v: np.ndarray, dt: float, *, six_pulse: bool = False) -> 
     most of it there. The share is returned above the bands' own: 0 for a
     flat spectrum, 1 for pure ripple. Harmonics below Nyquist and
     :data:`RIPPLE_CEILING_HZ` only (aliases of higher ones land off the bands
-    unless the rate is a multiple of the mains). ``six_pulse``: only a 6-pulse bridge's
-    harmonics (multiples of 6 x mains).
+    unless the rate is a multiple of the mains). ``harmonic_step``: 1, every harmonic from the
+    2nd (any bridge: a half-controlled one's 3rd too); 6, a 6-pulse bridge's only (multiples of
+    6 x mains).
     """
     x = np.asarray(v, dtype=np.float64)
     n = x.shape[0]
@@ -621,7 +622,7 @@ def mains_ripple_share(v: np.ndarray, dt: float, *, six_pulse: bool = False) -> 
         return 0.0
     t = np.arange(n, dtype=np.float64)
     x = x - np.polyval(np.polyfit(t, x, 1), t)
-    above, window, bands = _ripple_bands(n, float(dt), 6 if six_pulse else 1)
+    above, window, bands = _ripple_bands(n, float(dt), harmonic_step)
     power = np.abs(np.fft.rfft(x * window)) ** 2
     total = float(power[above].sum())
     if not total > 0.0:
@@ -635,11 +636,12 @@ def mains_ripple_share(v: np.ndarray, dt: float, *, six_pulse: bool = False) -> 
 
 @functools.lru_cache(maxsize=16)
 def _ripple_bands(
-    n: int, dt: float, step: int = 1
+    n: int, dt: float, harmonic_step: int = 1
 ) -> tuple[np.ndarray, np.ndarray, tuple[tuple[np.ndarray, float], ...]]:
     """For :func:`mains_ripple_share` on ``n`` samples at period ``dt`` (a window's length
     repeats, so cached): the bins above the floor, the Hann window, and per mains frequency
-    the bins of its harmonics' bands (from the 2nd, or every ``step``-th) with the share a
+    the bins of its harmonics' bands (every ``harmonic_step``-th, from the 2nd or the
+    ``harmonic_step``-th) with the share a
     flat spectrum puts there."""
     f = np.fft.rfftfreq(n, dt)
     above = f >= RIPPLE_FLOOR_HZ
@@ -647,8 +649,9 @@ def _ripple_bands(
     nyquist = 0.5 / dt
     bands = []
     for mains in MAINS_HZ:
-        first = 2.0 if step == 1 else float(step)
-        harmonics = np.arange(first, min(nyquist, RIPPLE_CEILING_HZ) / mains, step) * mains
+        first = 2.0 if harmonic_step == 1 else float(harmonic_step)
+        harmonics = np.arange(first, min(nyquist, RIPPLE_CEILING_HZ) / mains, harmonic_step)
+        harmonics = harmonics * mains
         if harmonics.size == 0:
             continue
         width = MAINS_DRIFT * harmonics + MAINS_LEAKAGE_BINS * bin_hz

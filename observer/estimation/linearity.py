@@ -405,7 +405,10 @@ def made_by_a_bridge(voltage: np.ndarray, dt: float, *, winding: str) -> bool:
     nyquist = 0.5 / dt
     if BRIDGE_RIPPLE_HZ < 0.9 * nyquist:
         v = sosfiltfilt(butter(4, BRIDGE_RIPPLE_HZ / nyquist, output="sos"), v)
-    return mains_ripple_share(v, dt, six_pulse=winding == "armature") >= CONVERTER_RIPPLE
+    return (
+        mains_ripple_share(v, dt, harmonic_step=6 if winding == "armature" else 1)
+        >= CONVERTER_RIPPLE
+    )
 
 
 class LinearityAccumulator:
