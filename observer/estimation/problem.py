@@ -528,8 +528,8 @@ def make_problem(
     ):
         fe_v, fe_i = front_ends
         voltage = apply_relative(voltage, dt, fe_v, fe_i)
-        if emf is not None:
-            emf = apply_relative(emf, dt, fe_i, fe_i)
+        # The EMF (``if*omega``) is taken as the current channel sees it: its inputs are slow,
+        # and their own front ends are not applied (docs/drive_chain.md).
         valid = _without_edges(valid, edge_samples(fe_v, fe_i, dt))
         model = "smooth"
     applied = applied_mismatch(mismatch) if front_ends is None and model == "smooth" else 0.0
