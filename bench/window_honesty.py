@@ -115,7 +115,11 @@ def _daemon_holds(
     linearity (:mod:`observer.estimation.linearity`): tested over the last
     ``WATCH_SECONDS`` every ``RETEST_SECONDS``, the result used 1.5 s later (the daemon's
     ``FILTER_DUE_S``), and before the first result a measured voltage no bridge made held;
-    and the fold the daemon takes out of the window's armature voltage (or None)."""
+    and the fold the daemon takes out of the window's armature voltage (or None).
+
+    The daemon reads the armature's voltage as measured by the window's own model, its first
+    window's, or most earlier windows' (``WindowObserver._armature_measured``). Here every
+    window has the whole recording's model, so all three are ``armature_model``."""
     from observer.estimation.linearity import (
         RETEST_SECONDS,
         WATCH_SECONDS,
