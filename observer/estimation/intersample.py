@@ -746,9 +746,14 @@ def rail_samples(x: np.ndarray) -> np.ndarray:
     with its period repeats its peak and its peak's neighbours alike. Only
     extremes at the channel's largest magnitude count, so a current resting
     at zero in discontinuous conduction is never taken for a rail.
+
+    A channel that holds one value over the whole window is not taken for clipped: nothing
+    tells a rail from a steady noise-free signal (the ideal drive's field current at
+    ``--noise 0``, whose every sample was left out, and the whole recording with it). A stuck
+    sensor is warned of when the recording is read.
     """
     out = np.zeros(x.shape[0], dtype=bool)
-    if x.shape[0] < 3:
+    if x.shape[0] < 3 or bool(np.all(x == x[0])):
         return out
     peak = float(np.max(np.abs(x)))
     if not peak > 0:

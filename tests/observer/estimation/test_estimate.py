@@ -42,6 +42,18 @@ def test_both_circuits_within_tolerance_without_configuration(fixture, request):
         assert e.rms_a > 0
 
 
+def test_a_noise_free_held_recording_is_estimated_exactly():
+    """The estimator's own assumption, with no noise (the paper's setting): the ideal drive's
+    field current is then one value throughout, which had been taken for a clipped channel,
+    every sample left out and nothing estimated."""
+    rec = simulate(P12, duration_s=4.0, sample_rate_hz=2000.0, seed=3, noise=0.0)
+    assert np.all(np.asarray(rec["if"]) == rec["if"][0])
+    a = estimate_recording(rec)["armature"]
+    assert _rel(a.resistance_ohm, P12.armature_resistance_ohm) < 1e-4
+    assert _rel(a.inductance_h, P12.armature_inductance_h) < 1e-4
+    assert _rel(a.emf_constant_h, P12.emf_constant_h) < 1e-4
+
+
 def test_field_estimate_matches_its_uncertainty_with_output_noise_only():
     """White current noise only: the output-error estimate is ML, its error ~ CRLB."""
     dt, n = 1e-3, 4000

@@ -264,6 +264,9 @@ def test_a_clipped_channel_is_found_at_its_rails_and_nowhere_else():
     # nor a current resting at zero in discontinuous conduction.
     dcm = np.where(np.sin(2 * np.pi * 300 * t) > 0.3, np.sin(2 * np.pi * 300 * t), 0.0)
     assert not rail_samples(np.round(dcm / lsb) * lsb).any()
+    # A channel that holds one value throughout (a steady, noise-free field current) is not
+    # taken for clipped: every sample would leave the fit.
+    assert not rail_samples(np.full(2000, 1.18919)).any()
 
 
 def test_segments_run_between_jumps_and_leave_invalid_samples():
