@@ -80,7 +80,7 @@ from observer.diagnosis.fitting import (
     split_segments,
 )
 from observer.diagnosis.locate import binned_structure, conditions, locate, periodic_structure
-from observer.diagnosis.noise_floor import noise_floor
+from observer.diagnosis.noise_floor import noise_floor, resolution_variance
 from observer.diagnosis.results import (
     CURRENT_CHANNEL,
     NONE,
@@ -467,13 +467,15 @@ def noise_floors(baseline: Baseline) -> dict[str, NoiseFloor]:
     """Stage 2: the residual a correct model would leave, per circuit."""
     data = baseline.data
     floors = {}
-    for circuit, est, v in (
-        ("field", baseline.field, data.vf),
-        ("armature", baseline.armature, data.va),
+    for circuit, est, v, i in (
+        ("field", baseline.field, data.vf, data.i_f),
+        ("armature", baseline.armature, data.va, data.ia),
     ):
         a = math.exp(-est.resistance_ohm * data.dt / est.inductance_h)
         b = (1 - a) / est.resistance_ohm
-        floors[circuit] = noise_floor(circuit, baseline.residuals[circuit], a, b, v)
+        floors[circuit] = noise_floor(
+            circuit, baseline.residuals[circuit], a, b, v, resolution_variance(i)
+        )
     return floors
 
 
@@ -611,7 +613,8 @@ class HoldoutScorer:
         extra = model.n_params - (models[ref].n_params if ref != NONE else 0)
         for c, rr, re in (("field", rf_r, rf_e), ("armature", ra_r, ra_e)):
             if c in circuits:
-                ratio = float(np.nansum(rr**2) / max(np.nansum(re**2), 1e-300))
+                # (floored both ways: a noise-free recording's field can fit exactly)
+                ratio = float(max(np.nansum(rr**2), 1e-300) / max(np.nansum(re**2), 1e-300))
                 ic += n_eff[c] * math.log(ratio)
         ic -= extra * math.log(sum(n_eff[c] for c in circuits))
         # Held-out log-likelihood ratio, counting independent samples only.
@@ -619,10 +622,10 @@ class HoldoutScorer:
         for c in circuits:
             n_h = float(np.sum(he - hs)) / max(floors[c].tau_int, 1.0)
             lr += n_h * math.log(
-                float(np.sum(held[ref][c])) / max(float(np.sum(held[key][c])), 1e-300)
+                max(float(np.sum(held[ref][c])), 1e-300) / max(float(np.sum(held[key][c])), 1e-300)
             )
         return {
-            "holdout_gain": float(np.sum(d) / base_sum),
+            "holdout_gain": float(np.sum(d) / base_sum) if base_sum > 0 else 0.0,
             "holdout_lr": lr,
             "holdout_t": t_stat,
             "holdout_segments": int(s),
@@ -1739,9 +1742,11 @@ def _main_circuit(
 ) -> str:
     if len(circuits) == 1:
         return circuits[0]
-    gain_f = 1 - float(np.sqrt(np.nanmean(rf**2))) / before["field"]
-    gain_a = 1 - float(np.sqrt(np.nanmean(ra**2))) / before["armature"]
-    return "field" if gain_f > gain_a else "armature"
+
+    def gain(r: np.ndarray, rms: float) -> float:  # a residual of zero cannot shrink
+        return 1 - float(np.sqrt(np.nanmean(r**2))) / rms if rms > 0 else 0.0
+
+    return "field" if gain(rf, before["field"]) > gain(ra, before["armature"]) else "armature"
 
 
 def _describe(

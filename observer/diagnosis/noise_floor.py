@@ -28,8 +28,30 @@ def _white_variance_between_lines(v: np.ndarray) -> float:
     return spectrum.noise_v**2 if spectrum.line else math.inf
 
 
+#: The finest resolution a recorded current is credited with: a 16-bit converter's
+#: quantisation over twice the current's largest magnitude. No drive's front end resolves
+#: finer, and a noise-free recording (the ideal drive at ``--noise 0``) left a floor of zero:
+#: ``diagnose`` stopped on a division by it, and any model's rounding would have been
+#: structure.
+FINEST_BITS = 16
+
+
+def resolution_variance(current: np.ndarray) -> float:
+    """Variance (A^2) of :data:`FINEST_BITS` quantisation over ``±max|current|``."""
+    x = np.asarray(current, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    peak = float(np.max(np.abs(x))) if x.size else 0.0
+    step = 2.0 * peak / 2.0**FINEST_BITS
+    return step * step / 12.0
+
+
 def noise_floor(
-    circuit: str, residual: np.ndarray, pole: float, gain: float, input_voltage: np.ndarray
+    circuit: str,
+    residual: np.ndarray,
+    pole: float,
+    gain: float,
+    input_voltage: np.ndarray,
+    resolution_var: float = 0.0,
 ) -> NoiseFloor:
     """Estimate the residual a correct model would leave, for one circuit.
 
@@ -53,6 +75,7 @@ def noise_floor(
     through the filter widens the spread too, by less; kept there: taken off, a
     healthy motor's field residual, periodic at 1x shaft speed at 0.3-0.8 mA, came
     back ``unexplained`` in 8 of 144 converter-fed diagnoses.)
+    The white part is at least ``resolution_var`` (:func:`resolution_variance`).
     """
     r = residual[np.isfinite(residual)]
     total = float(np.var(r))
@@ -73,7 +96,10 @@ def noise_floor(
         s = var_v * gain * gain / (1.0 - pole * pole) if pole < 1 else 0.0
         acov = _autocov(r, 1)
         white = max(float(acov[0] - acov[1]) - s * (1 - pole), 0.05 * total)
+    white = max(white, resolution_var)
     floor = white + s
+    if not floor > 0.0:  # a current that never left zero: nothing to scale by
+        floor = white = math.ulp(1.0)
     tau_ar = (1 + pole) / (1 - pole) if pole < 1 else float(r.size)
     tau_int = (white + s * tau_ar) / floor
     return NoiseFloor(circuit, floor, white, s, pole, tau_int, total)

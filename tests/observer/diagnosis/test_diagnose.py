@@ -241,3 +241,25 @@ def test_two_effects_at_once_are_named_as_a_pair():
     truth = _truth(rec)
     base_err = abs(diag.baseline["armature"].resistance_ohm / truth["Ra"] - 1)
     assert abs(best.corrected["armature"]["R"] / truth["Ra"] - 1) < base_err / 3
+
+
+def test_a_residual_of_zero_has_the_converter_s_resolution_for_its_floor():
+    """A noise-free recording fits the field exactly: its floor was zero, and ``diagnose``
+    stopped on a division by it. The floor is now at least a 16-bit converter's
+    quantisation of the current (and a current that never left zero has a tiny one)."""
+    from observer.diagnosis.noise_floor import resolution_variance
+
+    i_f = np.full(4000, 1.2)
+    var = resolution_variance(i_f)
+    assert var == pytest.approx((2 * 1.2 / 2**16) ** 2 / 12)
+    floor = noise_floor("field", np.zeros(4000), 0.9999, 1e-4, np.full(4000, 220.0), var)
+    assert floor.variance_a2 == pytest.approx(var) and np.isfinite(floor.tau_int)
+    assert noise_floor("field", np.zeros(4000), 0.9999, 1e-4, np.zeros(4000)).variance_a2 > 0
+
+
+@pytest.mark.slow
+def test_a_noise_free_recording_is_diagnosed_without_an_error():
+    rec = simulate(P12, duration_s=4.0, sample_rate_hz=2000.0, seed=3, noise=0.0)
+    diag = diagnose(rec, n_particles=30, iterations=30)
+    assert diag.verdict  # a verdict, where it stopped on a division by zero
+    assert all(f.variance_a2 > 0 for f in diag.floors.values())
