@@ -161,7 +161,9 @@ class ConverterDrive:
         self._offsets[3] += fx.if_offset_a
         self._delays = np.array([ch.delay_s for ch in self.channels])
         if fx.current_delay_s:
-            for c in (1, 3):
+            # Currents read behind the voltages (i(t_k - delay)): the voltages sampled that
+            # much after them, as the ideal drive's sampling_skew relates the two.
+            for c in (0, 2):
                 self._delays[c] += fx.current_delay_s
                 if self._delays[c] >= self.dt:
                     raise ValueError(

@@ -31,8 +31,12 @@ each departure is known. This module adds them to the drive simulator:
 ``sensor_offset``
     A DC offset (A) on the armature current sensor (the recorded signal only).
 ``sampling_skew``
-    The current channels are sampled ``delay`` seconds after the voltage
-    channels (the recorded signals only; the drive sees the true currents).
+    The current channels read ``delay`` seconds behind the voltage channels,
+    ``i_measured[k] = i(t_k - delay)``: a current sensor's latency, or currents sampled
+    before the voltages (the converter drive samples the voltage channels ``delay`` after
+    the currents, the same relation). The recorded signals only; the drive sees the true
+    currents. Currents sampled *after* the voltages are a chain's per-channel delay
+    (``--delay-us ia=...,if=...``).
 
 Two more effects are deliberately *outside* the diagnosis library
 (:mod:`observer.diagnosis`): a recording that carries them must come back
@@ -146,7 +150,7 @@ class PlantEffects:
     ia_offset_a, if_offset_a : float
         DC offsets of the armature and field current sensors (A).
     current_delay_s : float
-        Sampling delay of the current channels behind the voltages (s).
+        How far the current channels read behind the voltages (s): ``i(t_k - delay)``.
     """
 
     saturation_per_a: float = 0.0
