@@ -342,8 +342,9 @@ def fit_baseline(
             front_ends=chain_kw["armature"]["front_ends"],
         )  # fmt: skip
     base_full = baseline_full_vector(field_est, arm_est)
-    ctx = context_from(
-        rec, field_est.resistance_ohm, field_est.inductance_h, arm_est.resistance_ohm
+    ctx = dataclasses.replace(
+        context_from(rec, field_est.resistance_ohm, field_est.inductance_h, arm_est.resistance_ohm),
+        current_read_after=shifts["armature"][0] > CHAIN_SHIFT,
     )
     data = FitData(rec, base_full, ctx, chain_inputs(rec, field_est, arm_est, chain, identified))
     rf0, ra0, k0 = data.residuals(base_full, *data.whole_record)
@@ -777,11 +778,12 @@ def decide_verdict(
     spectra = voltage_spectra(rec, linearity)
     chain = front_end_findings(rec, baseline, spectra, linearity)
     verdict = selection.verdict
-    confounded = _confounded_with_chain(chain) & set(verdict.split("+"))
+    confounded_here = _confounded_with_chain(chain, baseline.context.current_read_after)
+    confounded = confounded_here & set(verdict.split("+"))
     set_aside = ""
     if confounded:
-        # Not told apart from the channels' front ends: the best choice without it.
-        set_aside, verdict = verdict, _best_without(selection, cands, confounded)
+        # Not told apart from the channels' front ends: the best choice without any such.
+        set_aside, verdict = verdict, _best_without(selection, cands, confounded_here)
     # The data between the voltage's jumps, built once for whichever of the two tests asks.
     switched = functools.cache(functools.partial(switched_data, rec, baseline))
     jumps: tuple[ChainFinding, ...] = ()
@@ -979,9 +981,12 @@ def decide_verdict(
             "samples follow a curve of the voltage (see the chain findings), so neither the "
             "plain model nor an effect can be tested on them; " + description
         )
-    if set_aside and verdict == NONE:
+    if set_aside and verdict == NONE and confounded - {"sampling_skew"}:
         # Something earned its parameters and cannot be put down to the motor or the chain.
         verdict = UNEXPLAINED
+        description = _set_aside_note(set_aside, confounded)
+    elif set_aside and verdict == NONE:
+        # Currents read after their voltages: the chain's skew, reported there.
         description = _set_aside_note(set_aside, confounded)
     elif set_aside and verdict == UNEXPLAINED:
         description += "; " + _set_aside_note(set_aside, confounded)
@@ -1045,11 +1050,17 @@ def _circuits_with(chain: Sequence[ChainFinding], kind: str) -> set[str]:
     }
 
 
-def _confounded_with_chain(chain: Sequence[ChainFinding]) -> set[str]:
+def _confounded_with_chain(chain: Sequence[ChainFinding], read_after: bool) -> set[str]:
     """The library's effects the chain findings leave no room to name
-    (:data:`CONFOUNDED_WITH_SKEW` on a winding whose channels read skewed)."""
+    (:data:`CONFOUNDED_WITH_SKEW` on a winding whose channels read skewed; and, ``read_after``,
+    currents read after their voltages, ``sampling_skew`` fitted at a negative delay, where
+    that is what the skew is: a current offset behind a chopper at 5 kHz was named
+    ``sensor_offset+sampling_skew``)."""
     skewed = _circuits_with(chain, "channel_skew")
-    return {n for n in CONFOUNDED_WITH_SKEW if set(LIBRARY[n].circuits) & skewed}
+    out = {n for n in CONFOUNDED_WITH_SKEW if set(LIBRARY[n].circuits) & skewed}
+    if read_after and skewed:
+        out.add("sampling_skew")
+    return out
 
 
 def _best_without(selection: Selection, cands: Candidates, names: set[str]) -> str:
@@ -1064,11 +1075,22 @@ def _best_without(selection: Selection, cands: Candidates, names: set[str]) -> s
 
 def _set_aside_note(named: str, confounded: set[str]) -> str:
     which = " and ".join(sorted(confounded))
+    why = []
+    if confounded - {"sampling_skew"}:
+        why.append(
+            "a difference between their filters leaves the same second, faster time constant "
+            "in its response"
+        )
+    if "sampling_skew" in confounded:
+        why.append(
+            "currents read after their voltages (a negative sampling_skew) are that skew: a "
+            "multiplexed ADC's order, or a voltage filtered more than its current"
+        )
     return (
         f"{named} would earn its parameters, but {which} cannot be told from the chain: the "
-        "winding's voltage and current channels read skewed (see the chain findings), and a "
-        "difference between their filters leaves the same second, faster time constant in "
-        "its response; configure the channels' front ends ([chain]) to tell them apart"
+        "winding's voltage and current channels read skewed (see the chain findings), and "
+        + "; ".join(why)
+        + "; configure the channels' front ends ([chain]: filter, delay_us) to tell them apart"
     )
 
 

@@ -34,6 +34,10 @@ class DataContext:
         Mean copper loss ``Ra*ia^2 + Rf*if^2`` with the baseline resistances (W).
     field_time_constant_s : float
         The baseline's ``Lf/Rf``.
+    current_read_after : bool
+        The baseline read the armature's current ahead of its voltage by more than a chain's
+        filters do (:data:`~observer.diagnosis.diagnose.CHAIN_SHIFT`): currents sampled after
+        the voltages, whose ``sampling_skew`` is a negative delay.
     """
 
     dt: float
@@ -43,6 +47,7 @@ class DataContext:
     va_peak_v: float
     mean_loss_w: float
     field_time_constant_s: float
+    current_read_after: bool = False
 
 
 def thermal_rise(k: float, tau: float, loss_w: float, t: float) -> float:
@@ -289,11 +294,20 @@ class SensorOffset(Effect):
 class SamplingSkew(Effect):
     name = "sampling_skew"
     explanation = "the current channels are sampled with a delay against the voltage channels"
-    equation = "i_measured[k] = i(t_k - delay)"
+    # A multiplexed ADC reads its channels one after another, in either order: a current
+    # read after its voltage (delay < 0) answers the winding's later state. The sign is the
+    # one the baseline's relative delay shows (``current_read_after``): free to take both,
+    # the delay stood in for other physics (a current offset behind a chopper at 5 kHz was
+    # named ``sensor_offset+sampling_skew``, the ideal drive's 1-period skew read 1.36).
+    # Where the channels read skewed, a negative delay is the chain's
+    # (:func:`~observer.diagnosis.diagnose.decide_verdict`).
+    equation = "i_measured[k] = i(t_k - delay)  (delay < 0: the current read after the voltage)"
     signals = ("vf", "if", "va", "ia", "omega")
     circuits = ("field", "armature")
 
     def parameters(self, ctx: DataContext) -> tuple[Parameter, ...]:
+        if ctx.current_read_after:
+            return (Parameter("current_delay_s", "s", -1.99 * ctx.dt, 0.0, 0.0),)
         return (Parameter("current_delay_s", "s", 0.0, 1.99 * ctx.dt, 0.0),)
 
     def magnitude(self, values: dict[str, float], ctx: DataContext) -> dict[str, float]:

@@ -261,7 +261,6 @@ class CandidateModel:
         for j, (i, p) in enumerate(zip(self.effect_idx, self.params, strict=True)):
             v = x[:, nb + j]
             full[:, i] = 10.0**v if p.log else v
-        full[:, dk.I_SKEW] = np.maximum(full[:, dk.I_SKEW], 0.0)
         return np.ascontiguousarray(full)
 
     def init_bounds(self) -> np.ndarray:

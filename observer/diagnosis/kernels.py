@@ -16,7 +16,8 @@ resistances, so ``P*(1+theta)`` is the loss the hot windings dissipate)::
     field:  Lf/(1+c|if|)^2 * dif/dt = vf - Rf*(1+theta)*if  (+ eddy path: k2, tau_e)
     arm.:   La*dia/dt = va - Ra*(1+theta)*ia - Vb*tanh(ia/iw)
                         - K*g(if)*(1 - beta*|ia|)*omega,   g(if) = if/(1+c|if|)
-    sensors: measured current = model current read ``skew`` s late + offset
+    sensors: measured current = model current at t - skew, + offset (skew < 0: the
+             current channels sampled after the voltages, |skew| < 2 periods)
 
 The winding voltages enter as their Legendre moments over every sample
 interval (``mu``, ``(n - 1, 3)``), the estimator's intersample model
@@ -125,11 +126,18 @@ def _eddy_step(
 
 
 @njit(nogil=True, cache=True)
+def _skewed_end(k1: int, m_skew: int, n: int) -> int:
+    """Where a segment ending at ``k1`` stops being simulated: a current read ``-m_skew``
+    periods after its voltage is answered by the model's state that many samples later."""
+    return min(k1 - m_skew, n) if m_skew < 0 else k1
+
+
+@njit(nogil=True, cache=True)
 def _advanced(x: np.ndarray, k: int, m: int, f: float) -> float:
     """``x`` at sample ``k + m + f`` (linear interpolation, clamped to the record)."""
     n = x.shape[0]
-    i0 = min(k + m, n - 1)
-    i1 = min(k + m + 1, n - 1)
+    i0 = min(max(k + m, 0), n - 1)
+    i1 = min(max(k + m + 1, 0), n - 1)
     return (1.0 - f) * x[i0] + f * x[i1]
 
 
@@ -187,18 +195,21 @@ def field_residual(
         s_rs = 0.0
         s_ss = 0.0
         s_rr = 0.0
-        for k in range(kw, k1):
+        for k in range(kw, _skewed_end(k1, m_skew, if_m.shape[0])):
             y2 = y1
             y1 = y0
             y0 = i + off
-            if m_skew == 0:
+            if m_skew <= 0:
                 ym = (1.0 - f_skew) * y0 + f_skew * y1
             else:
                 ym = (1.0 - f_skew) * y1 + f_skew * y2
-            if k >= k0:
-                r = if_m[k] - ym
-                out[k] = r
-                sens[k] = si
+            # The measured sample the model output at k answers (a current read after
+            # its voltage answers the model's later state).
+            jm = k + m_skew if m_skew < 0 else k  # (j is the eddy current)
+            if k0 <= jm < k1:
+                r = if_m[jm] - ym
+                out[jm] = r
+                sens[jm] = si
                 s_rr += r * r
                 s_rs += r * si
                 s_ss += si * si
@@ -228,6 +239,11 @@ def field_residual(
                 si = a * si
                 if si < 1e-150:
                     si = 0.0
+        # A current read after its voltage at the record's end: its last samples are not
+        # answered by a simulated state, and leave no residual.
+        for jm in range(max(k0, _skewed_end(k1, m_skew, if_m.shape[0]) + min(m_skew, 0)), k1):
+            out[jm] = 0.0
+            sens[jm] = 0.0
         if s_ss > 0.0:
             delta = s_rs / s_ss
             for k in range(k0, k1):
@@ -291,11 +307,12 @@ def armature_residual(
         ye0 = ye1 = ye2 = 0.0
         yg0 = yg1 = yg2 = 1.0
         q_prev = 0.0
-        for k in range(k0, k1):
+        k_end = _skewed_end(k1, m_skew, ia_m.shape[0])
+        for k in range(k0, k_end):
             yv2, yv1, yv0 = yv1, yv0, fv
             ye2, ye1, ye0 = ye1, ye0, fe
             yg2, yg1, yg0 = yg1, yg0, g
-            if m_skew == 0:
+            if m_skew <= 0:
                 sv = (1.0 - f_skew) * yv0 + f_skew * yv1
                 se = (1.0 - f_skew) * ye0 + f_skew * ye1
                 sg = (1.0 - f_skew) * yg0 + f_skew * yg1
@@ -303,11 +320,23 @@ def armature_residual(
                 sv = (1.0 - f_skew) * yv1 + f_skew * yv2
                 se = (1.0 - f_skew) * ye1 + f_skew * ye2
                 sg = (1.0 - f_skew) * yg1 + f_skew * yg2
-            d = ia_m[k] - off_a - sv
-            # The measured currents lag by the skew: as model inputs, read them ahead.
-            ia_true = _advanced(ia_m, k, m_skew, f_skew) - off_a
-            if thermal:
+            if thermal:  # read theta[k] before ebuf (theta's memory) is written at k
                 a, c0, c1, c2 = _coefficients(ra0 * (1.0 + theta[k]), la, dt, held)
+            jm = k + m_skew if m_skew < 0 else k  # the measured sample answered (field's)
+            if k0 <= jm < k1:
+                d = ia_m[jm] - off_a - sv
+                if not fit_k:
+                    d += emf_constant * se
+                dbuf[jm] = d
+                ebuf[jm] = se
+                gbuf[jm] = sg
+                s_de += d * se
+                s_ee += se * se
+                seg_dg[s] += d * sg
+                seg_eg[s] += se * sg
+                seg_gg[s] += sg * sg
+            # The measured currents are read the skew late: as model inputs, read them ahead.
+            ia_true = _advanced(ia_m, k, m_skew, f_skew) - off_a
             # Inputs over [k, k+1]: the voltage's moments less the brush drop (held),
             # the EMF linear between samples (its mean and slope moments).
             kv = k if k < n_int else n_int - 1
@@ -318,27 +347,21 @@ def armature_residual(
                 i_f = _advanced(if_m, k, m_skew, f_skew) - off_f
                 ia_k = _advanced(ia_m, k, m_skew, f_skew) - off_a
                 q_prev = i_f / (1.0 + c * abs(i_f)) * (1.0 - beta * abs(ia_k)) * omega[k]
-            kn = k + 1 if k + 1 < k1 else k
+            kn = k + 1 if k + 1 < k_end else k
             i_fn = _advanced(if_m, kn, m_skew, f_skew) - off_f
             ia_n = _advanced(ia_m, kn, m_skew, f_skew) - off_a
             q_next = i_fn / (1.0 + c * abs(i_fn)) * (1.0 - beta * abs(ia_n)) * omega[kn]
             e = 0.5 * (q_prev + q_next)
             e1 = (q_next - q_prev) / 6.0 if emf_slope else 0.0
             q_prev = q_next
-            if not fit_k:
-                d += emf_constant * se
-            dbuf[k] = d
-            ebuf[k] = se
-            gbuf[k] = sg
-            s_de += d * se
-            s_ee += se * se
-            seg_dg[s] += d * sg
-            seg_eg[s] += se * sg
-            seg_gg[s] += sg * sg
             fv = a * fv + c0 * u + c1 * mu[kv, 1] + c2 * mu[kv, 2]
             fe = a * fe + c0 * e + c1 * e1
             gg = a * g
             g = gg if abs(gg) > 1e-150 else 0.0
+        for jm in range(max(k0, k_end + min(m_skew, 0)), k1):  # unanswered (see the field's)
+            dbuf[jm] = 0.0
+            ebuf[jm] = 0.0
+            gbuf[jm] = 0.0
     return _project_emf_and_initial_currents(
         dbuf, ebuf, gbuf, s_de, s_ee, seg_dg, seg_eg, seg_gg, starts, stops, fit_k,
         emf_constant, out,
