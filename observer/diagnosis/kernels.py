@@ -169,6 +169,7 @@ def field_residual(
     varying = thermal or c != 0.0
     m_skew = int(math.floor(skew / dt))
     f_skew = skew / dt - m_skew
+    lead = min(m_skew, 0)  # a current read after its voltage: answered |lead| samples later
     a, c0, c1, c2 = _coefficients(rf0, lf, dt, held)
     n_int = mu.shape[0]
     p00 = p01 = p10 = p11 = g0 = g1 = 0.0
@@ -195,7 +196,8 @@ def field_residual(
         s_rs = 0.0
         s_ss = 0.0
         s_rr = 0.0
-        for k in range(kw, _skewed_end(k1, m_skew, if_m.shape[0])):
+        k_end = _skewed_end(k1, m_skew, if_m.shape[0])
+        for k in range(kw, k_end):
             y2 = y1
             y1 = y0
             y0 = i + off
@@ -205,7 +207,7 @@ def field_residual(
                 ym = (1.0 - f_skew) * y1 + f_skew * y2
             # The measured sample the model output at k answers (a current read after
             # its voltage answers the model's later state).
-            jm = k + m_skew if m_skew < 0 else k  # (j is the eddy current)
+            jm = k + lead  # (j is the eddy current)
             if k0 <= jm < k1:
                 r = if_m[jm] - ym
                 out[jm] = r
@@ -241,7 +243,7 @@ def field_residual(
                     si = 0.0
         # A current read after its voltage at the record's end: its last samples are not
         # answered by a simulated state, and leave no residual.
-        for jm in range(max(k0, _skewed_end(k1, m_skew, if_m.shape[0]) + min(m_skew, 0)), k1):
+        for jm in range(max(k0, k_end + lead), k1):
             out[jm] = 0.0
             sens[jm] = 0.0
         if s_ss > 0.0:
@@ -286,6 +288,7 @@ def armature_residual(
     fit_k = math.isnan(emf_constant)
     m_skew = int(math.floor(skew / dt))
     f_skew = skew / dt - m_skew
+    lead = min(m_skew, 0)  # as the field's
     a, c0, c1, c2 = _coefficients(ra0, la, dt, held)
     n_int = mu.shape[0]
     n_seg = starts.shape[0]
@@ -322,7 +325,7 @@ def armature_residual(
                 sg = (1.0 - f_skew) * yg1 + f_skew * yg2
             if thermal:  # read theta[k] before ebuf (theta's memory) is written at k
                 a, c0, c1, c2 = _coefficients(ra0 * (1.0 + theta[k]), la, dt, held)
-            jm = k + m_skew if m_skew < 0 else k  # the measured sample answered (field's)
+            jm = k + lead  # the measured sample answered (as the field's)
             if k0 <= jm < k1:
                 d = ia_m[jm] - off_a - sv
                 if not fit_k:
@@ -358,7 +361,7 @@ def armature_residual(
             fe = a * fe + c0 * e + c1 * e1
             gg = a * g
             g = gg if abs(gg) > 1e-150 else 0.0
-        for jm in range(max(k0, k_end + min(m_skew, 0)), k1):  # unanswered (see the field's)
+        for jm in range(max(k0, k_end + lead), k1):  # unanswered (see the field's)
             dbuf[jm] = 0.0
             ebuf[jm] = 0.0
             gbuf[jm] = 0.0
