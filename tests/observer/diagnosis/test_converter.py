@@ -452,20 +452,48 @@ def test_currents_sampled_after_their_voltages_are_put_down_to_the_chain_s_skew(
     voltages (a multiplexed ADC). The diagnosis tries the sign of delay its baseline shows, and
     a negative ``sampling_skew`` earns its parameters; with the channels read skewed it is the
     chain's, and said so (with the delay a lag only, nothing in the description said what the
-    residual was)."""
-    drive = REALISTIC.replace(
-        chain=REALISTIC.chain.with_channel("ia", delay_s=100e-6).with_channel("if", delay_s=100e-6)
-    )
-    rec = simulate(
-        P12, duration_s=6.0, sample_rate_hz=5000.0, seed=7, drive=drive, drive_name="realistic"
-    )
+    residual was). Diagnosed again with the voltages' delays kept in the plain model, the
+    healthy motor is ``none`` (``unexplained`` until then: the skew's structure stayed)."""
+    rec = _read_late(5000.0, 100e-6, seed=7)
     diag = diagnose(rec)
     assert diag.context.current_read_after
-    assert diag.verdict in (NONE, UNEXPLAINED), diag.description
+    assert diag.verdict == NONE, diag.description
     assert "currents read after their voltages (a negative sampling_skew)" in diag.description
-    skew = next(f for f in diag.findings if f.effect == "sampling_skew")
-    assert skew.accepted and skew.magnitude["delay_samples"] < -0.4
+    assert "delays the estimator fitted kept in the plain model" in diag.description
+    assert diag.intersample["armature"]["shift_samples"] > 0.4  # the chain's skew, kept
     assert "channel_skew" in {c.kind for c in diag.chain}
+
+
+@pytest.mark.slow
+def test_a_sensor_offset_behind_currents_read_late_is_named():
+    """Refitted without the chain's skew, the same recording with a 1 % armature current
+    sensor offset was ``none``: the skew's 0.58 A rms swamped the offset's part. Judged
+    against a plain model that keeps the skew, the offset is named."""
+    rec = _read_late(5000.0, 100e-6, seed=1, effects={"sensor_offset": 0.01})
+    diag = diagnose(rec)
+    assert diag.verdict == "sensor_offset", diag.description
+    assert "channel_skew" in {c.kind for c in diag.chain}
+
+
+@pytest.mark.slow
+def test_a_motor_effect_behind_currents_read_late_is_still_named():
+    """The chain's skew is put down to the chain only where nothing else earns its parameters:
+    a 1 V brush drop on the P-12 at 10 kHz, its currents read 40 us after their voltages, is
+    named (the pair with the skew set aside)."""
+    rec = _read_late(10000.0, 40e-6, seed=2, effects={"brush_drop": 1.0})
+    diag = diagnose(rec)
+    assert diag.context.current_read_after
+    assert diag.verdict == "brush_drop", diag.description
+
+
+def _read_late(rate_hz: float, delay_s: float, *, seed: int, effects=None):
+    """The P-12 behind the bridges and the realistic chain, its currents sampled ``delay_s``
+    after the voltages (a multiplexed ADC), untold."""
+    chain = REALISTIC.chain.with_channel("ia", delay_s=delay_s).with_channel("if", delay_s=delay_s)
+    return simulate(
+        P12, duration_s=6.0, sample_rate_hz=rate_hz, seed=seed, effects=effects,
+        drive=REALISTIC.replace(chain=chain), drive_name="realistic",
+    )  # fmt: skip
 
 
 def _averaged(rate_hz: float, *, effects=None, motor=P12):
