@@ -177,6 +177,10 @@ def _nonnegative(x: Any) -> str | None:
     return None if x >= 0 else f"must be >= 0, got {x!r}"
 
 
+def _gain_tolerance(x: Any) -> str | None:
+    return None if 0 <= x < 0.5 else f"must be a fraction in [0, 0.5), got {x!r}"
+
+
 @dataclass(frozen=True)
 class ChannelFrontEnd:
     """One channel's measurement front end, as far as it is known.
@@ -200,6 +204,14 @@ class ChannelFrontEnd:
     )
     averaging: bool = dataclasses.field(
         default=False, metadata={"help": "the sample is the mean over the period ending at it"}
+    )
+    gain_tolerance: float = dataclasses.field(
+        default=0.0,
+        metadata={
+            "check": _gain_tolerance,
+            "help": "the sensor's gain accuracy, relative one-sigma (0.005: 0.5 %); every "
+            "estimate's std takes it as a bias all windows share",
+        },
     )
 
     @property

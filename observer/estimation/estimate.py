@@ -25,7 +25,7 @@ from observer.estimation.filter_id import (
     FilterFit,
     identify_voltage_filter,
 )
-from observer.estimation.frontend import applied_mismatch, winding_front_ends
+from observer.estimation.frontend import applied_mismatch, gain_tolerances, winding_front_ends
 from observer.estimation.linearity import (
     Fold,
     Linearity,
@@ -36,7 +36,7 @@ from observer.estimation.linearity import (
     voltage_linearity,
 )
 from observer.estimation.ranges import EstimationError, SearchRange
-from observer.estimation.result import CircuitEstimate
+from observer.estimation.result import CircuitEstimate, with_gain_tolerance
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +119,7 @@ def estimate_recording(
         out["armature"] = with_linearity(out["armature"], result)
         if "field" in out:
             out["field"] = not_described(out["field"], field_note(result, rec["vf"], rec.dt))
-    return out
+    return {c: with_gain_tolerance(e, gain_tolerances(chain, c)) for c, e in out.items()}
 
 
 def _estimate_circuit(

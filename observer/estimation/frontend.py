@@ -174,6 +174,28 @@ def winding_front_ends(chain: Any, winding: str) -> tuple[FrontEnd, FrontEnd] | 
     return fe_v, fe_i
 
 
+def gain_tolerances(chain: Any, winding: str) -> dict[str, float]:
+    """Each of ``winding``'s parameters' relative one-sigma from its sensors' configured
+    ``gain_tolerance`` (0 where none is configured).
+
+    A sensor's gain error scales what the fit sees, and no window can tell it from the motor:
+    ``R`` and ``L`` come out scaled by the voltage's gain over the current's, the armature's
+    ``K`` (in ``va = Ra ia + La dia/dt + K if omega``) by the armature voltage's over the
+    field current's and the speed's.
+    """
+    if chain is None:
+        return {}
+
+    def tol(*names: str) -> float:
+        return math.sqrt(sum(getattr(chain, n).gain_tolerance ** 2 for n in names))
+
+    v_name, i_name = WINDING_CHANNELS[winding]
+    out = {"R": tol(v_name, i_name), "L": tol(v_name, i_name)}
+    if winding == "armature":
+        out["K"] = tol("va", "i_f", "omega")
+    return {k: v for k, v in out.items() if v > 0}
+
+
 def voltage_filtered(front_ends: tuple[FrontEnd, FrontEnd] | None) -> bool:
     """The configured voltage front end of ``(voltage, current)`` has an anti-aliasing
     filter (False where the front ends are not configured)."""

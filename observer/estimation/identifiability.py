@@ -88,6 +88,14 @@ def identify(est: CircuitEstimate, limits: Mapping[str, float]) -> Identificatio
             else:
                 rel_text = f"{100 * rel:.0f} %" if rel >= 1 else f"{100 * rel:.3g} %"
             reasons[p] = f"relative std {rel_text} > {100 * limits[p]:g} %"
+            shared = est.relative_shared_std(p)
+            if shared > limits[p]:
+                # A bias every window shares (a sensor's configured gain tolerance, an
+                # offset, the chain): no longer recording brings the parameter within.
+                reasons[p] += (
+                    f", of which {100 * shared:.3g} % every window shares (sensor gain "
+                    "tolerance or offset, the chain): more data will not bring it within"
+                )
         else:
             identified[p] = True
     if est.circuit == "armature" and identified["R"] != identified["K"]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from observer.estimation.pso import PSOResult
@@ -169,3 +169,21 @@ def kphi(emf_constant_h: float, std_h: float, field_current_a: float) -> tuple[f
     a motor's data sheet gives, and its one-sigma from K's (the field current's own error, a
     sensor's fraction of a percent, left out)."""
     return emf_constant_h * field_current_a, abs(std_h * field_current_a)
+
+
+def with_gain_tolerance(est: CircuitEstimate, rel: Mapping[str, float]) -> CircuitEstimate:
+    """``est`` with each parameter's relative one-sigma ``rel[name]`` (a sensor's gain
+    accuracy, :func:`observer.estimation.frontend.gain_tolerances`) added to its ``std`` and
+    to the part every window shares (``shared_std``): a bias no weighing of windows removes."""
+    values = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}
+    std, shared = dict(est.std), dict(est.shared_std)
+    for name, r in rel.items():
+        value = values.get(name)
+        if r <= 0 or name not in std or value is None or not math.isfinite(value):
+            continue
+        bias = r * abs(value)
+        std[name] = math.hypot(std[name], bias)
+        shared[name] = math.hypot(shared.get(name, 0.0), bias)
+    if std == dict(est.std):
+        return est
+    return replace(est, std=std, shared_std=shared)

@@ -82,7 +82,7 @@ from observer.estimation.filter_id import (
     FilterFit,
     identify_voltage_filter,
 )
-from observer.estimation.frontend import applied_mismatch, winding_front_ends
+from observer.estimation.frontend import applied_mismatch, gain_tolerances, winding_front_ends
 from observer.estimation.linearity import (
     RETEST_SECONDS,
     WATCH_SECONDS,
@@ -94,7 +94,7 @@ from observer.estimation.linearity import (
     made_by_a_bridge,
 )
 from observer.estimation.motor import MotorParameters
-from observer.estimation.result import kphi
+from observer.estimation.result import kphi, with_gain_tolerance
 from observer.service.circuit_worker import CircuitWorker, WorkerFailed
 from observer.service.ringbuffer import RingBuffer, Window
 from observer.service.speed import SpeedEstimate, TachometerCheck, emf_speed
@@ -539,7 +539,7 @@ class SlidingWindowObserver:
                     self._armature_first = self._armature_first or read
                 if circuit == "field":
                     fit = with_field_fold(fit, self._fold(), signals["vf"], period_s)
-                fits[circuit] = fit
+                fits[circuit] = with_gain_tolerance(fit, gain_tolerances(self.chain, circuit))
             except _ESTIMATION_ERRORS as exc:
                 self.counts[f"{circuit}_failed"] += 1
                 flags.append(f"{circuit}: {exc}")

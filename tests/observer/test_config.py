@@ -40,6 +40,7 @@ def test_valid_config_and_defaults(tmp_path):
         ("[estimate.field]\nR = [1.0]\n", ["estimate.field.R", "2 values"]),
         ("[estimate\n", ["c.toml", "TOML"]),
         ('[observer]\nmotor_id = "a/b"\n', ["observer.motor_id", "'/'"]),
+        ("[chain.va]\ngain_tolerance = 0.7\n", ["c.toml", "chain.va.gain_tolerance", "[0, 0.5)"]),
         # Zenoh security: a bad path names the key and the file (resolved beside the config).
         (
             '[zenoh.tls]\nroot_ca = "certs/ca.pem"\n',

@@ -148,3 +148,22 @@ def test_a_configured_sampling_delay_is_the_one_the_simulator_makes():
         intersample="smooth", fit_shift=True,
     )  # fmt: skip
     assert abs(est.shift_samples) < 0.05
+
+
+def test_sensor_gain_tolerances_combine_per_parameter():
+    """R and L scale with the voltage's gain over the current's, K with the armature voltage's
+    over the field current's and the speed's; nothing configured, nothing added."""
+    from observer.estimation.frontend import gain_tolerances
+
+    chain = ChainConfig(
+        va=ChannelFrontEnd(gain_tolerance=0.003),
+        ia=ChannelFrontEnd(gain_tolerance=0.004),
+        i_f=ChannelFrontEnd(gain_tolerance=0.012),
+        omega=ChannelFrontEnd(gain_tolerance=0.004),
+    )
+    arm = gain_tolerances(chain, "armature")
+    assert arm["R"] == pytest.approx(0.005) and arm["L"] == pytest.approx(0.005)
+    assert arm["K"] == pytest.approx(np.sqrt(0.003**2 + 0.012**2 + 0.004**2))
+    assert gain_tolerances(chain, "field") == pytest.approx({"R": 0.012, "L": 0.012})
+    assert gain_tolerances(ChainConfig(), "armature") == {}
+    assert gain_tolerances(None, "field") == {}
