@@ -1730,9 +1730,9 @@ def diagnose(
         )  # fmt: skip
         if keep_delay or not outcome.chain_read:
             break
-        # The structure located was the chain's own reading (currents read after their
-        # voltages): diagnosed again with the voltages' delays in the plain model, so that a
-        # motor effect under that skew is judged against it, not against the skew.
+        # What earned its parameters was set aside only as the chain's own reading (currents
+        # read after their voltages): diagnosed again with the voltages' delays in the plain
+        # model, so that a motor effect under that skew is judged beside it, not against it.
         first_pass = outcome
     if first_pass is not None:
         outcome = dataclasses.replace(
