@@ -67,11 +67,10 @@ def identify(est: CircuitEstimate, limits: Mapping[str, float]) -> Identificatio
     Identification
     """
     params = CIRCUIT_PARAMS[est.circuit]
-    values = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}
     identified: dict[str, bool] = {}
     reasons: dict[str, str] = {}
     for p in params:
-        value = values[p]
+        value = est.value(p)
         rel = est.relative_std(p) if p in est.std else math.inf
         if not est.describes_window:
             identified[p] = False

@@ -112,16 +112,20 @@ class CircuitEstimate:
     def time_constant_s(self) -> float:
         return self.inductance_h / self.resistance_ohm
 
+    def value(self, name: str) -> float | None:
+        """The estimate of ``"R"``, ``"L"`` or ``"K"`` (None: K not estimated)."""
+        return {"R": self.resistance_ohm, "L": self.inductance_h, "K": self.emf_constant_h}[name]
+
     def relative_std(self, name: str) -> float:
         """``std[name] / |value|``: e.g. > 0.05 means the window hardly identifies it."""
-        value = {"R": self.resistance_ohm, "L": self.inductance_h, "K": self.emf_constant_h}[name]
+        value = self.value(name)
         if value is None or value == 0:
             return math.inf
         return self.std[name] / abs(value)
 
     def relative_shared_std(self, name: str) -> float:
         """``shared_std[name] / |value|`` (0 where none is known)."""
-        value = {"R": self.resistance_ohm, "L": self.inductance_h, "K": self.emf_constant_h}[name]
+        value = self.value(name)
         shared = self.shared_std.get(name, 0.0)
         if value is None or value == 0 or shared == 0:
             return 0.0
@@ -175,15 +179,14 @@ def with_gain_tolerance(est: CircuitEstimate, rel: Mapping[str, float]) -> Circu
     """``est`` with each parameter's relative one-sigma ``rel[name]`` (a sensor's gain
     accuracy, :func:`observer.estimation.frontend.gain_tolerances`) added to its ``std`` and
     to the part every window shares (``shared_std``): a bias no weighing of windows removes."""
-    values = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}
+    if not rel:
+        return est
     std, shared = dict(est.std), dict(est.shared_std)
     for name, r in rel.items():
-        value = values.get(name)
+        value = est.value(name)
         if r <= 0 or name not in std or value is None or not math.isfinite(value):
             continue
         bias = r * abs(value)
         std[name] = math.hypot(std[name], bias)
         shared[name] = math.hypot(shared.get(name, 0.0), bias)
-    if std == dict(est.std):
-        return est
     return replace(est, std=std, shared_std=shared)

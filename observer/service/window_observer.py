@@ -1008,7 +1008,7 @@ class SlidingWindowObserver:
             if est is None or not est.describes_window:
                 evidence[name] = None
                 continue
-            value = {"R": est.resistance_ohm, "L": est.inductance_h, "K": est.emf_constant_h}[p]
+            value = est.value(p)
             rel = est.relative_std(p)
             ok = value is not None and math.isfinite(value) and math.isfinite(rel)
             shared = est.relative_shared_std(p)
