@@ -35,13 +35,11 @@ state, the innovations and the change test are as without it.
 
 Windows that are not evidence -- the estimator says its model does not
 describe them, the parameter's relative std is not finite or zero, or above its
-``[observer.quality]`` limit -- only advance the state (``held``); a
-resistance's window within a few times its limit still goes to the change test
-(:meth:`MotorTracker._test_weak`). An innovation beyond ``gate_sigma`` is not
-used to update (``outlier``) but goes to the change test
-(:mod:`observer.service.changes`). A confirmed change freezes the circuit's
-parameters until windows wholly after it (windows across a step describe
-neither side; those already seen count) agree on the new level, then
+``[observer.quality]`` limit -- only advance the state (``held``). An
+innovation beyond ``gate_sigma`` is not used to update (``outlier``) but goes to
+the change test (:mod:`observer.service.changes`). A confirmed change freezes
+the circuit's parameters until windows wholly after it (windows across a step
+describe neither side; those already seen count) agree on the new level, then
 re-starts the changed parameter there and reports the size of the step as a
 :class:`ChangeEvent`; a change they do not bear out is dropped.
 """
@@ -846,8 +844,6 @@ class MotorTracker:
             ev = evidence.get(name)
             if ev is None or name in distrust or not self._usable(name, ev):
                 status[name] = "held" if track.state is not None else "none"
-                if ev is not None and name not in distrust:
-                    self._test_weak(name, track, t_ns, ev, losses, status)
                 continue
             if name == "K" and self._k_sensor_level is not None and track.state is not None:
                 # After an apparent rise of K put down to a sensor: fits nearer that
@@ -1042,40 +1038,6 @@ class MotorTracker:
             math.isfinite(ev.value) and ev.value > 0 and math.isfinite(ev.rel_std)
             and 0 < ev.rel_std <= limit
         )  # fmt: skip
-
-    def _test_weak(
-        self,
-        name: str,
-        track: _Track,
-        t_ns: int,
-        ev: Evidence,
-        losses: Sequence[tuple[float, float]],
-        status: dict[str, str],
-    ) -> None:
-        """Let the step test weigh a resistance's window beyond the quality limit (within
-        :data:`WEAK_FACTOR` times it) by its std, without the state taking it in.
-
-        After a step the drive often runs where ``Ra`` and ``K`` separate only weakly:
-        behind the thyristor bridges at 2 kHz, a 3 % step of Ra was shown by one window
-        at 3.6 sigma, then the windows stood at 0.9-6 % for 1.4 s (limit 0.8 %) and the
-        test, which took none of them, confirmed the step 4.9 s after it. The published
-        value stays held; the windows are weighed as the filter would weigh them (those
-        the test took before counted in), so overlapping weak windows count as a tenth.
-        Only the resistances, as for the first window after a held stretch: the other
-        fits are more exposed to an operating point's bias.
-        """
-        state = track.state
-        if (
-            state is None or name[0] != "R" or not (math.isfinite(ev.value) and ev.value > 0)
-            or not (0 < ev.rel_std <= WEAK_FACTOR * self.limits[name])
-        ):  # fmt: skip
-            return
-        z = math.log(ev.value)
-        r, _ = self._measurement_variance(ev, track.scale)
-        row, nu, s = innovation(track.model, state, z, r, self._fit_lag(name), losses)
-        alarm = track.test.observe(t_ns, row, nu, s, None)
-        if alarm is not None:
-            self._open_transition(name, alarm, t_ns, None, status)
 
     def _shows_level(self, tr: _Transition, ev: Evidence) -> bool:
         """Whether a window after a confirmed change counts towards its new level.
