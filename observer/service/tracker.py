@@ -562,8 +562,9 @@ class ChangeEvent:
     t_detected_ns: int
 
 
-#: Windows in a row whose fits must agree to show the level after a change span at
-#: least this long (s), and are at least three.
+#: The windows whose fits must agree to show the level after a change (those seen wholly
+#: after its onset, not necessarily consecutive) span at least this long (s), and are at
+#: least three.
 SETTLE_S = 0.3
 
 #: How far back (s) the step test looks for the onset of a change: a step the windows
@@ -913,7 +914,7 @@ class MotorTracker:
         # A change confirmed this window whose level the windows already seen wholly after
         # its onset show (:meth:`_open_transition`) is reported now, not a window later.
         for circuit, tr in list(self.transitions.items()):
-            if tr.detected_ns == t_ns and len(tr.recent) == tr.recent.maxlen:
+            if tr.detected_ns == t_ns:
                 self._continue_transition(circuit, t_ns, {}, loss, losses, distrust, step, status)
         k_state = self.tracks["K"].state
         if k_state is not None and status.get("K") == "ok" and "armature" not in self.transitions:
@@ -981,7 +982,7 @@ class MotorTracker:
         # ``settle_windows`` new ones after the alarm cost 0.3 s on every change.
         window_ns = int(round(self.window_s * 1e9))
         for seen in track.fits:
-            if seen[0] - window_ns >= alarm.started_ns and (shown is None or seen[0] < shown[0]):
+            if seen[0] - window_ns >= alarm.started_ns and seen[0] < t_ns:
                 tr.recent.append(seen)
         if shown is not None:
             tr.recent.append(shown)
@@ -1195,8 +1196,9 @@ class MotorTracker:
     ) -> None:
         """Hold the circuit until windows show the new level; then confirm the change or drop it.
 
-        The new level shows in windows in a row (with evidence, spanning
-        ``SETTLE_S``) that agree within their noise and closer than windows
+        The new level shows in the last windows seen wholly after the onset (with
+        evidence, as many as span ``SETTLE_S``; those from before the alarm need not
+        be consecutive) that agree within their noise and closer than windows
         sliding across the step would:
         windows across a step describe neither side and slide from one to the
         other, so until then the circuit's parameters are frozen. Fits that keep
@@ -1212,7 +1214,7 @@ class MotorTracker:
         if ev is not None and self._shows_level(tr, ev):
             tr.recent.append((t_ns, math.log(ev.value), ev.rel_std**2))
         zs = [z for _, z, _ in tr.recent]
-        # Consecutive windows agreeing within their noise, and closer than windows sliding
+        # The level's windows agreeing within their noise, and closer than windows sliding
         # across the step would be (they move by a share hop/window of it per window).
         settled = False
         if len(zs) == tr.recent.maxlen:
