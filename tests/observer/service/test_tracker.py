@@ -638,6 +638,32 @@ def test_windows_seen_wholly_after_the_onset_show_the_level_at_once(seed):
     assert abs(change.relative - 0.03) < 3 * change.relative_std
 
 
+@pytest.mark.parametrize("seed", range(8))
+def test_windows_that_turn_informative_after_a_step_weigh_what_they_add(seed):
+    """Ra steps 3 % while the windows identify it loosely (0.9 % std); 1.5 s after it the
+    drive turns informative and each window halves its std down to 0.3 %. A window
+    overlapping the last one taken in shares at most that one's information, so most of
+    a much sharper window is new: the step test weighs it so, not as a tenth (as a tenth,
+    two of these eight steps were never reported and one came 2.4 s late)."""
+    fits = Fits(seed)
+    trk = _tracker()
+    step_at, turns = 12.0, 13.5
+    changes = []
+    for i in range(200):
+        t = (i + 1) * 0.1
+        truth = _mixed("Ra", 0.03, step_at, t)
+        ev = fits(truth)["Ra"]
+        hops = round((t - turns) / 0.1)
+        rel = 0.009 if hops < 0 else max(0.003, 0.009 * 0.5**hops)
+        err = math.log(ev.value / truth["Ra"]) * rel / REL_STD["Ra"]
+        step = trk.step(int(round(t * 1e9)), {"Ra": Evidence(truth["Ra"] * math.exp(err), rel)})
+        changes += [(t, c) for c in step.changes]
+    assert len(changes) == 1, changes
+    t_event, change = changes[0]
+    assert t_event < turns + 1.0
+    assert abs(change.relative - 0.03) < 3 * change.relative_std
+
+
 @pytest.mark.parametrize("seed", [0, 2])
 def test_the_first_window_after_a_held_stretch_counts_whole(seed):
     """Ra rose 0.8 % (below the smallest change announced) while no window identified it.
