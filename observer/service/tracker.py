@@ -100,6 +100,12 @@ class Evidence:
         shared = self.shared_rel_std if math.isfinite(self.shared_rel_std) else 0.0
         return min(max(shared, 0.0), self.rel_std) ** 2
 
+    @property
+    def own_var(self) -> float:
+        """The relative variance of the window's own error: ``rel_std^2`` less the shared
+        part (>= 0)."""
+        return self.rel_std**2 - self.shared_var
+
 
 @dataclass
 class Gaussian:
@@ -865,7 +871,7 @@ class MotorTracker:
             if track.state is None:
                 track.state = self._first(track.model, name, z, r, loss, losses)
                 track.last_in_ns = t_ns
-                track.last_in_own = ev.rel_std**2 - ev.shared_var
+                track.last_in_own = ev.own_var
                 if name in self._banked and loss > 0:  # (losses known to drive them)
                     q = self.config.R_drift_per_min**2 / 60.0
                     models = [Thermal(tau, q) for tau in THERMAL_TAUS_S]
@@ -906,7 +912,7 @@ class MotorTracker:
                 continue
             update(track.state, row, nu, s)
             track.last_in_ns = t_ns
-            track.last_in_own = ev.rel_std**2 - ev.shared_var
+            track.last_in_own = ev.own_var
             if track.bank is not None:
                 track.bank.loglik += _loglik(nu, s)
                 lag = self._fit_lag(name)
@@ -1128,11 +1134,10 @@ class MotorTracker:
         windows go from 0.7 % to 0.3 % in four hops, and weighed as a tenth the test
         took 0.7 s to see 3 % at 4-10 sigma each)."""
         assert track.state is not None
-        own = ev.rel_std**2 - ev.shared_var
         share = 1.0 / self._repeats(track, t_ns)
-        if track.last_in_own is not None and own > 0.0:
-            share = max(share, 1.0 - own / track.last_in_own)
-        r = track.scale * max(own, 0.0) / min(share, 1.0) + ev.shared_var
+        if track.last_in_own is not None and ev.own_var > 0.0:
+            share = max(share, 1.0 - ev.own_var / track.last_in_own)
+        r, _ = self._measurement_variance(ev, track.scale, 1.0 / share)
         return float(row @ track.state.P @ row + r)
 
     def _measurement_variance(
@@ -1157,7 +1162,7 @@ class MotorTracker:
         over the window as well weighed the precise Rf fits of a heating field
         down until the state lagged the heating by twice the 0.1 % tolerance.)
         """
-        own = scale * (ev.rel_std**2 - ev.shared_var)
+        own = scale * ev.own_var
         weigh = self.overlap if repeats is None else repeats
         return weigh * own + ev.shared_var, own + ev.shared_var
 
@@ -1179,7 +1184,7 @@ class MotorTracker:
         operating point has) cancels in such differences, so nothing here can
         confirm it: it is kept as the window says.
         """
-        own = ev.rel_std**2 - ev.shared_var
+        own = ev.own_var
         if not own > 0.0:
             return
         apart_ns = int(round(self.window_s * 1e9))
